@@ -1,0 +1,51 @@
+"""scenelabel: photos + 2D masks -> a queryable 3D semantic radiance field and occupancy map.
+
+Public API (numpy in, numpy out)::
+
+    from scenelabel import SemanticField
+    field = SemanticField.load("room/scenelabel")
+    q = field.query_points(xyz)                 # density, occupancy, probs, label
+    r = field.query_rays(origins, directions)   # rgb, depth, opacity, probs, label
+    m = field.occupancy_map(voxel_size=0.05)
+    m.to_zarr("room.zarr")
+"""
+
+from ._version import __version__
+from .config import BuildConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
+from .errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
+from .io import load_scene
+from .maps import FREE, UNKNOWN, OccupancyMap
+from .pipeline import BuildResult, build
+from .scene import Cameras, ClassMap, Scene
+from .semantic_field import PointQuery, RayQuery, RenderResult, SemanticField
+from .synthetic import write_furnished_room, write_toy_scene
+
+__all__ = [
+    "__version__",
+    "SemanticField",
+    "PointQuery",
+    "RayQuery",
+    "RenderResult",
+    "OccupancyMap",
+    "FREE",
+    "UNKNOWN",
+    "build",
+    "BuildResult",
+    "load_scene",
+    "Scene",
+    "Cameras",
+    "ClassMap",
+    "BuildConfig",
+    "FieldConfig",
+    "SamplingConfig",
+    "TrainConfig",
+    "OutputConfig",
+    "preset",
+    "write_toy_scene",
+    "write_furnished_room",
+    "ScenelabelError",
+    "InputError",
+    "ConfigError",
+    "TrainingError",
+    "CheckpointError",
+]

@@ -1,0 +1,142 @@
+"""Configuration: small flat dataclasses, one per stage, with named presets.
+
+Unknown keys are an error (:func:`config_from_dict`); the resolved config is saved with each
+checkpoint (:func:`config_to_dict`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from .errors import ConfigError
+
+__all__ = [
+    "FieldConfig",
+    "SamplingConfig",
+    "TrainConfig",
+    "OutputConfig",
+    "BuildConfig",
+    "PRESETS",
+    "preset",
+    "config_from_dict",
+    "config_to_dict",
+]
+
+
+@dataclass
+class FieldConfig:
+    """The network: encoding + heads (see scenelabel.fields)."""
+
+    encoding: str = "triplane"  # triplane | dense
+    resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
+    channels: int = 16  # features per plane / voxel
+    grid_resolution: int = 96  # dense grid side
+    hidden: int = 64  # width of the heads' hidden layers
+    view_dependent: bool = True  # colour depends on view direction (SH degree 2)
+    density_bias: float = -1.0  # σ = softplus(raw + density_bias): low initial density
+
+
+@dataclass
+class SamplingConfig:
+    """Where samples go along rays and how empty space is skipped."""
+
+    n_steps: int = 256  # marching steps across the scene box diagonal (sets the step size)
+    grid_resolution: int = 64  # occupancy grid side
+    grid_update_every: int = 16  # training steps between occupancy-grid refreshes
+    grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
+    alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
+    chunk_rays: int = 4096  # rays per chunk when rendering outside training
+
+
+@dataclass
+class TrainConfig:
+    """The optimisation loop."""
+
+    steps: int = 1500
+    batch_rays: int = 2048
+    lr_encoding: float = 2e-2
+    lr_mlp: float = 5e-3
+    lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
+    semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
+    time_budget: float | None = None  # seconds; training stops early when spent
+    seed: int = 0
+    holdout: int = 8  # every holdout-th view is held out for evaluation; 0 = train on all
+    background: tuple[float, float, float] | None = (1.0, 1.0, 1.0)  # colour behind the scene; None = black
+    checkpoint_every: int = 500  # steps between checkpoints
+    log_every: int = 25  # steps between progress-bar updates
+
+
+@dataclass
+class OutputConfig:
+    """What a build writes beside the checkpoint."""
+
+    smooth_sigma: float = 1.0  # Gaussian smoothing (pixels) for the smoothed-label renders
+    map_voxel_size: float | None = None  # None: what the images can resolve
+    write_map: bool = True
+    write_renders: bool = True
+
+
+@dataclass
+class BuildConfig:
+    """Everything one build resolves to; saved with the checkpoint."""
+
+    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    sampling: SamplingConfig = dataclasses.field(default_factory=SamplingConfig)
+    train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    output: OutputConfig = dataclasses.field(default_factory=OutputConfig)
+    preset: str = "fast"
+
+
+PRESETS: dict[str, dict] = {
+    "fast": {},
+    "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
+        "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},
+        "sampling": {"n_steps": 128, "grid_resolution": 32, "grid_warmup": 16},
+        "train": {"steps": 300, "batch_rays": 1024},
+    },
+}
+
+
+def preset(name: str = "fast", overrides: dict | None = None) -> BuildConfig:
+    """The named preset's config, with ``overrides`` (nested dict by stage) applied on top."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    merged: dict = {"preset": name}
+    for source in (PRESETS[name], overrides or {}):
+        for key, value in source.items():
+            if isinstance(value, dict):
+                merged.setdefault(key, {}).update(value)
+            else:
+                merged[key] = value
+    return config_from_dict(merged)
+
+
+def _stage_from_dict(cls, data: dict, where: str):
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} must be a mapping, got {type(data).__name__}")
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(f"unknown {where} config key(s) {unknown}; known: {sorted(names)}")
+    values = {}
+    for key, value in data.items():
+        if isinstance(value, list):
+            value = tuple(value)
+        values[key] = value
+    return cls(**values)
+
+
+def config_from_dict(data: dict) -> BuildConfig:
+    """Build a :class:`BuildConfig` from a nested dict; unknown keys raise :class:`ConfigError`."""
+    stages = {"field": FieldConfig, "sampling": SamplingConfig, "train": TrainConfig, "output": OutputConfig}
+    unknown = sorted(set(data) - set(stages) - {"preset"})
+    if unknown:
+        raise ConfigError(f"unknown config section(s) {unknown}; known: {sorted(stages) + ['preset']}")
+    kwargs = {name: _stage_from_dict(cls, data.get(name, {}), name) for name, cls in stages.items()}
+    return BuildConfig(**kwargs, preset=data.get("preset", "fast"))
+
+
+def config_to_dict(config: BuildConfig) -> dict:
+    """A JSON-ready nested dict of ``config``."""
+    return dataclasses.asdict(config)

@@ -1,0 +1,77 @@
+"""The semantic radiance field: encoding + heads -> σ, rgb, class logits (a thin nn.Module).
+
+Inputs are points in the *normalised* frame (docs/conventions.md); ``aabb`` is the scene box in
+that frame, mapped onto the encoding's unit box. σ is per normalised unit of length.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..config import FieldConfig
+from ..errors import ConfigError
+from .encodings import DenseGrid, TriPlane, sh_directions
+
+__all__ = ["SemanticField3D", "build_encoding"]
+
+SH_DIM = 9
+
+
+def build_encoding(config: FieldConfig) -> nn.Module:
+    if config.encoding == "triplane":
+        return TriPlane(config.resolutions, config.channels)
+    if config.encoding == "dense":
+        return DenseGrid(config.grid_resolution, config.channels)
+    raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane' or 'dense'")
+
+
+class SemanticField3D(nn.Module):
+    """σ (scalar density) with a class head beside it (the seed paper's eq. 6 variant).
+
+    trunk: features -> hidden -> (σ_raw, h); colour: (h, SH(d)) -> hidden -> rgb; class: h -> logits.
+    """
+
+    def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor):
+        super().__init__()
+        self.config = config
+        self.num_classes = num_classes
+        self.register_buffer("aabb", aabb.clone().float())
+        self.encoding = build_encoding(config)
+        h = config.hidden
+        self.trunk = nn.Sequential(nn.Linear(self.encoding.out_dim, h), nn.ReLU(), nn.Linear(h, h + 1))
+        rgb_in = h + (SH_DIM if config.view_dependent else 0)
+        self.rgb_head = nn.Sequential(nn.Linear(rgb_in, h), nn.ReLU(), nn.Linear(h, 3))
+        self.class_head = nn.Linear(h, num_classes)
+
+    def encoding_parameters(self) -> list[nn.Parameter]:
+        return list(self.encoding.parameters())
+
+    def mlp_parameters(self) -> list[nn.Parameter]:
+        ids = {id(p) for p in self.encoding.parameters()}
+        return [p for p in self.parameters() if id(p) not in ids]
+
+    def _unit(self, points: torch.Tensor) -> torch.Tensor:
+        return (points - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2.0 - 1.0
+
+    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.trunk(self.encoding(self._unit(points)))
+        sigmas = F.softplus(out[:, 0] + self.config.density_bias)
+        return sigmas, F.relu(out[:, 1:])
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        """points [n, 3] -> σ [n] (no colour or class work)."""
+        return self._trunk(points)[0]
+
+    def semantics(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """points [n, 3] -> σ [n], class_logits [n, C] (no colour work)."""
+        sigmas, h = self._trunk(points)
+        return sigmas, self.class_head(h)
+
+    def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
+        sigmas, h = self._trunk(points)
+        rgb_in = torch.cat([h, sh_directions(directions)], -1) if self.config.view_dependent else h
+        rgbs = torch.sigmoid(self.rgb_head(rgb_in))
+        return sigmas, rgbs, self.class_head(h)

@@ -1,0 +1,258 @@
+"""``build``: a scene folder in; a checkpoint, metrics, renders and an occupancy map out.
+
+Orchestration on top of io, train, semantic_field and maps. Writes into the output folder:
+
+- ``checkpoint.pt``: weights + resolved config + class map + bounds + world transform
+- ``config.json``: the resolved config (human-readable copy)
+- ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
+- ``renders/<view>.png``: ground truth | rgb | labels | smoothed labels, for held-out views
+- ``map.zarr``: the semantic occupancy map
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from ._version import __version__
+from .checkpoint import CHECKPOINT_NAME, save_checkpoint
+from .config import BuildConfig, config_to_dict, preset
+from .errors import InputError
+from .fields.model import SemanticField3D
+from .frame import SceneFrame, aabb_from_cameras
+from .io import load_scene
+from .metrics import confusion_matrix, depth_error, miou, psnr, ssim
+from .postprocess import colorize_labels, side_by_side
+from .sampling import OccupancyGrid
+from .scene import ClassMap, Scene
+from .semantic_field import SemanticField
+from .train import Trainer, rays_for_views
+
+__all__ = ["build", "BuildResult", "split_views", "default_voxel_size"]
+
+MAP_NAME = "map.zarr"
+VOXEL_FOOTPRINT_PIXELS = 2.0
+"""The default map voxel spans this many training pixels at the typical viewing distance."""
+
+
+@dataclass
+class BuildResult:
+    field: SemanticField
+    metrics: dict
+    out_dir: Path
+
+
+def split_views(n_views: int, holdout: int) -> tuple[list[int], list[int]]:
+    """(train, test) indices: every ``holdout``-th view (0, h, 2h, ...) is held out; 0 = none.
+
+    Raises InputError when fewer than one training view would remain.
+    """
+    if n_views < 2:
+        raise InputError(f"a scene needs at least 2 views, got {n_views}")
+    test = [i for i in range(n_views) if holdout and i % holdout == 0]
+    train = [i for i in range(n_views) if i not in set(test)]
+    if not train:
+        raise InputError(f"holdout {holdout} leaves no training view among {n_views}")
+    return train, test
+
+
+def default_voxel_size(scene: Scene, train: list[int], aabb: np.ndarray, finest_cell: float) -> float:
+    """What the images can resolve: VOXEL_FOOTPRINT_PIXELS pixels at the median distance from the
+    training cameras to the scene centre, and never finer than the field's finest cell."""
+    cams = scene.cameras[train]
+    dist = np.linalg.norm(cams.centres - 0.5 * (aabb[0] + aabb[1]), axis=-1)
+    footprint = np.median(dist / np.sqrt(cams.fx * cams.fy))
+    return float(max(VOXEL_FOOTPRINT_PIXELS * footprint, finest_cell))
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _finest_cell(config: BuildConfig, aabb: np.ndarray) -> float:
+    """World length of the encoding's finest cell along the scene box's longest side."""
+    fc = config.field
+    res = max(fc.resolutions) if fc.encoding == "triplane" else fc.grid_resolution
+    return float((aabb[1] - aabb[0]).max() / (res - 1))
+
+
+def _class_colors(scene: Scene) -> dict[int, list[int]]:
+    colors = scene.info.get("class_colors") or {}
+    return {int(k): [int(c) for c in v] for k, v in colors.items()}
+
+
+def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: float | None, renders_dir: Path | None) -> dict:
+    """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class."""
+    class_ids = field.class_ids
+    ignore = scene.ignore_index
+    conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
+    conf_smooth = np.zeros_like(conf)
+    per_view, depth_errs = [], []
+    colors = field.meta.get("class_colors") or {}
+    for i in test:
+        out = field.render_camera(scene.cameras, i)
+        smoothed = field.render_camera(scene.cameras, i, smooth_sigma=smooth_sigma) if smooth_sigma else out
+        gt = scene.images[i]
+        view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt)}
+        label = scene.labels[i]
+        if label is not None:
+            conf += confusion_matrix(out.label, label, class_ids, ignore)
+            conf_smooth += confusion_matrix(smoothed.label, label, class_ids, ignore)
+            view["miou"] = miou(confusion_matrix(out.label, label, class_ids, ignore))[0]
+        depth = scene.depths[i]
+        if depth is not None:
+            err = depth_error(out.depth, depth, depth > 0)
+            view["depth_error"] = err
+            depth_errs.append(err)
+        per_view.append(view)
+        if renders_dir is not None:
+            panels = [gt, out.rgb]
+            panels = [(np.clip(p, 0, 1) * 255 + 0.5).astype(np.uint8) for p in panels]
+            panels += [colorize_labels(out.label, colors), colorize_labels(smoothed.label, colors)]
+            if label is not None:
+                panels.append(colorize_labels(label, colors, ignore_index=ignore))
+            Image.fromarray(side_by_side(panels)).save(renders_dir / f"{scene.names[i]}.png")
+    metrics: dict = {"n_test_views": len(test)}
+    if per_view:
+        metrics["psnr"] = float(np.mean([v["psnr"] for v in per_view]))
+        metrics["ssim"] = float(np.mean([v["ssim"] for v in per_view]))
+    if conf.sum():
+        mean_iou, per_class = miou(conf)
+        metrics["miou"] = float(mean_iou)
+        metrics["miou_smoothed"] = float(miou(conf_smooth)[0])
+        metrics["per_class_iou"] = {
+            str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
+        }
+    if depth_errs:
+        metrics["depth_error"] = float(np.mean([e["abs_rel"] for e in depth_errs]))
+        metrics["depth_error_details"] = {
+            k: float(np.mean([e[k] for e in depth_errs])) for k in depth_errs[0]
+        }
+    metrics["per_view"] = per_view
+    return metrics
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def build(
+    scene_path: str | Path | Scene,
+    out_dir: str | Path | None = None,
+    config: BuildConfig | None = None,
+    progress: bool = True,
+    device: str | None = None,
+) -> BuildResult:
+    """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
+
+    Args:
+        scene_path: a scene folder (see docs/formats.md) or an already loaded Scene.
+        out_dir: output folder (default: <scene>/scenelabel).
+        config: the resolved config (default: the ``fast`` preset).
+        progress: show a progress bar.
+        device: 'cpu', 'cuda' or None (CUDA when available).
+    Returns:
+        BuildResult with the loaded SemanticField and the metrics.
+    """
+    config = config or preset("fast")
+    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path)
+    out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create the output folder: {err.strerror or err}", path=out_dir) from None
+    if not os.access(out_dir, os.W_OK):
+        raise InputError("the output folder is not writable", path=out_dir)
+    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    _seed_everything(config.train.seed)
+
+    train_idx, test_idx = split_views(len(scene), config.train.holdout)
+    class_map = ClassMap.from_labels([scene.labels[i] for i in train_idx], scene.classes, scene.ignore_index)
+    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb)
+    frame = SceneFrame.from_aabb(aabb)
+    aabb_n = torch.as_tensor(frame.to_internal(aabb), dtype=torch.float32)
+    model = SemanticField3D(config.field, class_map.num_classes, aabb_n)
+    diag_n = float(torch.linalg.norm(aabb_n[1] - aabb_n[0]))
+    grid = OccupancyGrid(
+        aabb_n, config.sampling.grid_resolution, diag_n / config.sampling.n_steps, config.sampling.alpha_threshold
+    )
+    rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
+    trainer = Trainer(model, grid, rays, config, dev)
+    finest = _finest_cell(config, aabb)
+    static = {
+        "config": config_to_dict(config),
+        "class_map": class_map.to_dict(),
+        "classes": {str(k): v for k, v in scene.classes.items()},
+        "class_colors": _class_colors(scene),
+        "frame": frame.to_dict(),
+        "aabb_world": aabb.tolist(),
+        "aabb_source": aabb_source,
+        "aabb_internal": aabb_n.tolist(),
+        "frame_id": scene.frame_id,
+        "finest_cell": finest,
+        "default_voxel_size": default_voxel_size(scene, train_idx, aabb, finest),
+        "train_views": [scene.names[i] for i in train_idx],
+        "test_views": [scene.names[i] for i in test_idx],
+        "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
+    }
+
+    def payload(t: Trainer) -> dict:
+        return {
+            **static,
+            "model": t.model.state_dict(),
+            "occupancy": t.grid.state_dict(),
+            "optimizer": t.optimizer.state_dict(),
+            "step": t.state.step,
+            "elapsed": t.state.elapsed,
+        }
+
+    ckpt_path = out_dir / CHECKPOINT_NAME
+    state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
+    save_checkpoint(ckpt_path, payload(trainer))
+    _atomic_write_text(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2))
+
+    field = SemanticField.load(out_dir, device=str(dev))
+    renders_dir = None
+    if config.output.write_renders and test_idx:
+        renders_dir = out_dir / "renders"
+        renders_dir.mkdir(exist_ok=True)
+    t0 = time.perf_counter()
+    metrics = evaluate(field, scene, test_idx, config.output.smooth_sigma, renders_dir)
+    eval_seconds = time.perf_counter() - t0
+    metrics.update(
+        {
+            "scenelabel_version": __version__,
+            "preset": config.preset,
+            "steps": state.step,
+            "train_seconds": state.elapsed,
+            "steps_per_second": state.step / max(state.elapsed, 1e-9),
+            "eval_seconds": eval_seconds,
+            "n_train_views": len(train_idx),
+            "classes": {str(k): v for k, v in field.classes.items()},
+            "history": state.history,
+        }
+    )
+    if config.output.write_map:
+        t0 = time.perf_counter()
+        occ_map = field.occupancy_map(config.output.map_voxel_size)
+        occ_map.to_zarr(out_dir / MAP_NAME)
+        metrics["map"] = {
+            "path": MAP_NAME,
+            "voxel_size": occ_map.voxel_size,
+            "shape": list(occ_map.shape),
+            "seconds": time.perf_counter() - t0,
+        }
+    _atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2, default=float))
+    return BuildResult(field=field, metrics=metrics, out_dir=out_dir)

@@ -1,0 +1,207 @@
+"""Volume rendering as pure functions (the seed paper's eqs. 2-7, after Mildenhall et al. 2020).
+
+Samples along a ray i are intervals [t_starts, t_ends) with density σ_i. With δ_i = t_ends - t_starts:
+
+    τ_i = σ_i δ_i                          optical depth of interval i
+    α_i = 1 - exp(-τ_i)                    opacity of interval i                (eq. 3)
+    T_i = exp(-Σ_{j<i} τ_j)                transmittance reaching interval i    (eq. 2)
+    w_i = T_i α_i                          weight of interval i
+    C   = Σ w_i c_i                        composite colour                     (eq. 2)
+    P   = Σ w_i softmax(l_i) / Σ w_i       class probabilities                  (eq. 7)
+
+Transmittance is computed in log space (an exclusive cumulative sum of τ, then one exp) so it
+neither underflows step by step nor loses precision for tiny τ; α uses ``-expm1(-τ)``, exact for
+tiny τ. fp16/bf16 inputs are computed in fp32 (and returned as fp32). σ is clamped to
+[0, SIGMA_MAX] and τ to [0, TAU_MAX] so that σ in [0, inf] and δ in
+[0, 1e10] give finite values and finite gradients (inf * 0 would otherwise be NaN).
+
+All functions take ``[n_rays, n_samples]`` tensors (any leading batch shape works) and are
+differentiable. The maths never imports models or training.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+__all__ = [
+    "SIGMA_MAX",
+    "DELTA_MAX",
+    "TAU_MAX",
+    "OPACITY_EPS",
+    "optical_depth",
+    "alphas_from_density",
+    "trans_from_density",
+    "weights_from_density",
+    "composite",
+    "composite_rgb",
+    "depth_from_weights",
+    "class_probs_from_weights",
+    "class_log_probs_from_weights",
+]
+
+SIGMA_MAX = 1e30
+"""σ is clamped to this finite value first, so σ = inf still gives τ = σ δ = 0 for δ = 0."""
+
+DELTA_MAX = 1e30
+"""δ is clamped to this finite value, so an overflowed δ (inf in fp16) times σ = 0 is 0, not NaN."""
+
+TAU_MAX = 1e4
+"""τ above this is already fully opaque (exp(-1e4) == 0 in fp64); the clamp keeps sums finite."""
+
+OPACITY_EPS = 1e-10
+"""Below this opacity a ray counts as empty: class probs are uniform and depth is ``far``."""
+
+
+def optical_depth(sigmas: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """τ = σ δ, finite for σ in [0, inf] and δ in [0, 1e10].
+
+    Args:
+        sigmas: [n_rays, n_samples] densities (per unit length), ≥ 0 (negatives are clamped).
+        deltas: [n_rays, n_samples] interval lengths, ≥ 0.
+    Returns:
+        [n_rays, n_samples] τ in [0, TAU_MAX].
+    """
+    if sigmas.dtype in (torch.float16, torch.bfloat16):  # 16-bit input: do the maths in fp32
+        sigmas, deltas = sigmas.float(), deltas.float()
+    sigmas = sigmas.clamp(0.0, SIGMA_MAX)
+    return (sigmas * deltas.clamp(0.0, DELTA_MAX)).clamp(0.0, TAU_MAX)
+
+
+def alphas_from_density(sigmas: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """α_i = 1 - exp(-σ_i δ_i) (eq. 3), computed as -expm1(-τ) for precision at tiny τ.
+
+    Args:
+        sigmas, deltas: [n_rays, n_samples].
+    Returns:
+        [n_rays, n_samples] α in [0, 1].
+    """
+    return -torch.expm1(-optical_depth(sigmas, deltas))
+
+
+def trans_from_density(sigmas: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """T_i = exp(-Σ_{j<i} σ_j δ_j) (eq. 2), the exclusive cumulative sum taken in log space.
+
+    The exclusive sum is built by shifting (never by subtracting τ_i from an inclusive sum, which
+    gives inf - inf = NaN after an opaque sample).
+
+    Args:
+        sigmas, deltas: [n_rays, n_samples].
+    Returns:
+        [n_rays, n_samples] T in [0, 1]; T_0 = 1.
+    """
+    tau = optical_depth(sigmas, deltas)
+    csum = torch.cumsum(tau, dim=-1)
+    exclusive = torch.cat([torch.zeros_like(csum[..., :1]), csum[..., :-1]], dim=-1)
+    return torch.exp(-exclusive)
+
+
+def weights_from_density(
+    sigmas: torch.Tensor, deltas: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rendering weights w_i = T_i α_i.
+
+    Args:
+        sigmas: [n_rays, n_samples] densities.
+        deltas: [n_rays, n_samples] interval lengths (t_ends - t_starts).
+    Returns:
+        weights, trans, alphas: each [n_rays, n_samples]. Σ_i w_i = 1 - T_{n} ≤ 1.
+    """
+    if sigmas.shape != deltas.shape:
+        raise ValueError(f"sigmas {tuple(sigmas.shape)} and deltas {tuple(deltas.shape)} must match")
+    alphas = alphas_from_density(sigmas, deltas)
+    trans = trans_from_density(sigmas, deltas)
+    return trans * alphas, trans, alphas
+
+
+def composite(weights: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """Σ_i w_i v_i over the sample axis.
+
+    Args:
+        weights: [n_rays, n_samples].
+        values: [n_rays, n_samples, d].
+    Returns:
+        [n_rays, d].
+    """
+    dtype = torch.promote_types(weights.dtype, values.dtype)
+    return torch.einsum("...s,...sd->...d", weights.to(dtype), values.to(dtype))
+
+
+def composite_rgb(weights: torch.Tensor, rgbs: torch.Tensor, background: torch.Tensor | None = None) -> torch.Tensor:
+    """Composite colour C = Σ w_i c_i + (1 - Σ w_i) c_bg (eq. 2 with a background colour).
+
+    Args:
+        weights: [n_rays, n_samples].
+        rgbs: [n_rays, n_samples, 3].
+        background: [3] or [n_rays, 3] colour behind the last sample, or None (black).
+    Returns:
+        [n_rays, 3].
+    """
+    rgb = composite(weights, rgbs)
+    if background is not None:
+        rgb = rgb + (1.0 - weights.sum(-1, keepdim=True)).clamp(min=0.0) * background.to(rgb.dtype)
+    return rgb
+
+
+def depth_from_weights(
+    weights: torch.Tensor, t_mids: torch.Tensor, near: torch.Tensor, far: torch.Tensor
+) -> torch.Tensor:
+    """Expected depth of the visible surface, Σ w_i t_i / Σ w_i, clipped to [near, far].
+
+    Depth is the distance along the unit ray direction. A ray with opacity below OPACITY_EPS
+    reports ``far``.
+
+    Args:
+        weights: [n_rays, n_samples].
+        t_mids: [n_rays, n_samples] sample distances.
+        near, far: [n_rays] the ray's interval.
+    Returns:
+        [n_rays] depth.
+    """
+    t_mids, near, far = (x.to(weights.dtype) for x in (t_mids, near, far))
+    opacity = weights.sum(-1)
+    hit = opacity > OPACITY_EPS
+    depth = (weights * t_mids).sum(-1) / torch.where(hit, opacity, torch.ones_like(opacity))
+    depth = torch.where(hit, depth, far)
+    return torch.minimum(torch.maximum(depth, near), far)
+
+
+def class_log_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
+    """log P_c with P = Σ w_i softmax(l_i) / Σ w_i (eq. 7), computed stably in log space.
+
+    log P_c = logsumexp_i(log w_i + log_softmax(l_i)_c) - log Σ w_i. Samples with w_i = 0 drop
+    out exactly (log 0 = -inf); a ray whose weights are all below OPACITY_EPS gets the uniform
+    distribution, so the result is finite everywhere and its gradient is too.
+
+    Args:
+        weights: [n_rays, n_samples].
+        class_logits: [n_rays, n_samples, C].
+    Returns:
+        [n_rays, C] log-probabilities (each row's exp sums to 1).
+    """
+    n_classes = class_logits.shape[-1]
+    opacity = weights.sum(-1, keepdim=True)  # [n_rays, 1]
+    hit = opacity > OPACITY_EPS
+    # Rays without weight get pseudo-weights 1 so that the discarded branch stays finite (a NaN
+    # there would leak into the gradient through torch.where); their output is the uniform law.
+    safe_weights = torch.where(hit, weights, torch.ones_like(weights))
+    log_w = torch.log(safe_weights.clamp(min=torch.finfo(weights.dtype).tiny))
+    log_w = torch.where(safe_weights > 0, log_w, torch.full_like(log_w, -torch.inf))
+    log_p = torch.log_softmax(class_logits.to(weights.dtype), dim=-1)  # [n_rays, n_samples, C]
+    joint = torch.logsumexp(log_w[..., None] + log_p, dim=-2)  # [n_rays, C]
+    norm = torch.logsumexp(log_w, dim=-1, keepdim=True)  # [n_rays, 1]
+    uniform = torch.full_like(joint, -math.log(n_classes))
+    return torch.where(hit, joint - norm, uniform)
+
+
+def class_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
+    """P = Σ w_i softmax(l_i) / Σ w_i (eq. 7): per-ray class probabilities, summing to 1.
+
+    Args:
+        weights: [n_rays, n_samples].
+        class_logits: [n_rays, n_samples, C].
+    Returns:
+        [n_rays, C]; uniform for rays with opacity below OPACITY_EPS.
+    """
+    return torch.exp(class_log_probs_from_weights(weights, class_logits))

@@ -1,0 +1,201 @@
+"""The optimisation loop: rays of the training views -> a fitted SemanticField3D + occupancy grid.
+
+Orchestration only; the maths lives in rendering.py, sampling.py and losses.py.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .config import BuildConfig
+from .errors import TrainingError
+from .fields.model import SemanticField3D
+from .frame import SceneFrame
+from .losses import photometric_mse, semantic_cross_entropy
+from .rays import rays_from_cameras
+from .renderer import ray_intervals, render_rays
+from .sampling import OccupancyGrid
+from .scene import ClassMap, Scene
+
+__all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
+
+GRID_ALL_CELLS_STEPS = 256
+"""Occupancy-grid refreshes visit every cell until this step, then occupied + random cells."""
+
+
+@dataclass
+class RayData:
+    """All rays of some views, in the normalised frame (float32 tensors)."""
+
+    origins: torch.Tensor  # [N, 3]
+    directions: torch.Tensor  # [N, 3] unit
+    t_min: torch.Tensor  # [N]
+    t_max: torch.Tensor  # [N]
+    rgb: torch.Tensor  # [N, 3]
+    channels: torch.Tensor  # [N] int64 class channel, -1 = no label
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+
+def rays_for_views(
+    scene: Scene, indices: list[int], frame: SceneFrame, class_map: ClassMap, aabb_n: torch.Tensor
+) -> RayData:
+    """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far."""
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch")}
+    for i in indices:
+        origins, directions = rays_from_cameras(scene.cameras, i)
+        n = len(origins)
+        parts["o"].append(frame.to_internal(origins))
+        parts["d"].append(directions)
+        near, far = scene.cameras.near[i], scene.cameras.far[i]
+        parts["near"].append(np.full(n, near * frame.scale if np.isfinite(near) else 0.0))
+        parts["far"].append(np.full(n, far * frame.scale if np.isfinite(far) else np.inf))
+        parts["rgb"].append(scene.images[i].reshape(-1, 3))
+        label = scene.labels[i]
+        parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    o = torch.as_tensor(cat["o"], dtype=torch.float32)
+    d = torch.as_tensor(cat["d"], dtype=torch.float32)
+    t_min, t_max = ray_intervals(
+        o, d, aabb_n, torch.as_tensor(cat["near"], dtype=torch.float32), torch.as_tensor(cat["far"], dtype=torch.float32)
+    )
+    return RayData(
+        origins=o,
+        directions=d,
+        t_min=t_min,
+        t_max=t_max,
+        rgb=torch.as_tensor(cat["rgb"], dtype=torch.float32),
+        channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
+    )
+
+
+@dataclass
+class TrainState:
+    step: int = 0
+    elapsed: float = 0.0  # seconds of training so far (resumed runs add up)
+    history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
+
+
+class Trainer:
+    """Fits a field to the rays of the training views.
+
+    Args:
+        model: the field (normalised frame).
+        grid: its occupancy grid.
+        rays: training rays.
+        config: the resolved build config.
+        device: where to train.
+    """
+
+    def __init__(self, model: SemanticField3D, grid: OccupancyGrid, rays: RayData, config: BuildConfig, device: torch.device):
+        self.model = model.to(device)
+        self.grid = grid.to(device)
+        self.config = config
+        self.device = device
+        tc, sc = config.train, config.sampling
+        self.rays = RayData(**{k: v.to(device) for k, v in rays.__dict__.items()})
+        # Only rays that cross the box can be learnt from.
+        self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
+        if len(self.ray_pool) == 0:
+            raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
+        diag = float(torch.linalg.norm(model.aabb[1] - model.aabb[0]))
+        self.step_size = diag / sc.n_steps
+        self.n_samples = sc.n_steps + 1
+        fused = device.type in ("cpu", "cuda")
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": model.encoding_parameters(), "lr": tc.lr_encoding},
+                {"params": model.mlp_parameters(), "lr": tc.lr_mlp},
+            ],
+            betas=(0.9, 0.99),
+            eps=1e-15,  # Adam's eps: tiny, as for hash/grid encodings whose gradients are sparse
+            fused=fused,
+        )
+        self.base_lrs = [tc.lr_encoding, tc.lr_mlp]
+        self.background = None if tc.background is None else torch.tensor(tc.background, device=device)
+        self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
+        self.state = TrainState()
+
+    def _set_lr(self, step: int) -> None:
+        tc = self.config.train
+        factor = tc.lr_final_ratio ** (step / max(tc.steps, 1))
+        for group, base in zip(self.optimizer.param_groups, self.base_lrs):
+            group["lr"] = base * factor
+
+    def train_step(self) -> dict:
+        """One optimisation step on a random batch of rays; returns the logged scalars."""
+        tc, sc = self.config.train, self.config.sampling
+        step = self.state.step
+        if step >= sc.grid_warmup and step % sc.grid_update_every == 0:
+            all_cells = step < GRID_ALL_CELLS_STEPS
+            self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
+        self._set_lr(step)
+        pick = torch.randint(len(self.ray_pool), (tc.batch_rays,), generator=self.generator)
+        idx = self.ray_pool[pick.to(self.device)]
+        jitter = torch.rand(tc.batch_rays, generator=self.generator).to(self.device)
+        r = self.rays
+        out = render_rays(
+            self.model,
+            self.grid,
+            r.origins[idx],
+            r.directions[idx],
+            r.t_min[idx],
+            r.t_max[idx],
+            self.step_size,
+            self.n_samples,
+            jitter,
+            self.background,
+        )
+        mse = photometric_mse(out.rgb, r.rgb[idx])
+        ce = semantic_cross_entropy(out.class_log_probs, r.channels[idx])
+        loss = mse + tc.semantic_weight * ce
+        if not torch.isfinite(loss):
+            raise TrainingError(
+                f"the loss became non-finite at step {step} (mse={float(mse)}, ce={float(ce)}); "
+                "the learning rate is probably too high for this scene"
+            )
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.state.step += 1
+        return {
+            "step": self.state.step,
+            "loss": float(loss.detach()),
+            "mse": float(mse.detach()),
+            "ce": float(ce.detach()),
+            "psnr": -10.0 * math.log10(max(float(mse.detach()), 1e-10)),
+            "samples_per_ray": out.n_evaluated / tc.batch_rays,
+        }
+
+    def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
+        """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps."""
+        tc = self.config.train
+        start = time.perf_counter() - self.state.elapsed
+        self.model.train()
+        bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
+        try:
+            while self.state.step < tc.steps:
+                logs = self.train_step()
+                self.state.elapsed = time.perf_counter() - start
+                if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
+                    logs["time"] = self.state.elapsed
+                    self.state.history.append(logs)
+                    bar.set_postfix(loss=f"{logs['loss']:.4f}", psnr=f"{logs['psnr']:.1f}", spr=f"{logs['samples_per_ray']:.0f}")
+                bar.update(1)
+                if on_checkpoint is not None and self.state.step % tc.checkpoint_every == 0:
+                    on_checkpoint(self)
+                if tc.time_budget is not None and self.state.elapsed >= tc.time_budget:
+                    bar.write(f"time budget of {tc.time_budget:g} s reached after {self.state.step} steps")
+                    break
+        finally:
+            bar.close()
+            self.model.eval()
+        return self.state

@@ -1,0 +1,509 @@
+"""Tests of scenelabel.maps: OccupancyMap, lattice helpers, zarr I/O (v2 and v3), schema, atomicity."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from scenelabel import maps
+from scenelabel.errors import InputError
+from scenelabel.maps import (
+    FREE,
+    UNKNOWN,
+    OccupancyMap,
+    index_from_world,
+    iter_chunks,
+    lattice,
+    validate_attributes,
+    voxel_centers,
+    world_from_index,
+)
+
+# Hand-computable grid: voxel [i, j, k] has centre (1 + 0.5 i, -2 + 0.5 j, 0.25 + 0.5 k).
+ORIGIN = (1.0, -2.0, 0.25)
+VOXEL = 0.5
+SHAPE = (4, 5, 6)
+CLASSES = {0: "floor", 3: "chair", 7: "table"}
+
+
+def make_map(**overrides) -> OccupancyMap:
+    rng = np.random.default_rng(0)
+    label = rng.choice(np.array([FREE, UNKNOWN, 0, 3, 7], np.int16), size=SHAPE).astype(np.int16)
+    occupancy = rng.random(SHAPE, dtype=np.float32)
+    occupancy[label == UNKNOWN] = 0.0
+    label[1, 2, 3] = 7  # a known voxel for the arithmetic checks
+    occupancy[1, 2, 3] = 0.875
+    kwargs = dict(
+        label=label,
+        occupancy=occupancy,
+        voxel_size=VOXEL,
+        origin=ORIGIN,
+        classes=CLASSES,
+        occupancy_delta=0.01,
+        class_colors={0: (10, 20, 30), 7: [255, 0, 128]},
+        frame_id="map",
+        occupancy_threshold=0.5,
+        scale_source="input",
+        units="metre",
+    )
+    kwargs.update(overrides)
+    return OccupancyMap(**kwargs)
+
+
+# ---------------------------------------------------------------------------- construction
+
+
+def test_constants():
+    assert FREE == -1 and UNKNOWN == -2
+
+
+def test_post_init_normalises_and_validates():
+    m = make_map()
+    assert m.label.dtype == np.int16 and m.occupancy.dtype == np.float32
+    assert m.origin.dtype == np.float64 and m.origin.shape == (3,)
+    assert m.shape == SHAPE
+    assert m.class_colors == {0: (10, 20, 30), 7: (255, 0, 128)}
+    with pytest.raises(ValueError):
+        m.label[0, 0, 0] = 3  # frozen arrays
+    # an int64 label is accepted and cast
+    m2 = make_map(label=m.label.astype(np.int64))
+    assert m2.label.dtype == np.int16 and m2 == m
+
+
+@pytest.mark.parametrize(
+    "overrides, field",
+    [
+        ({"label": np.zeros((4, 5), np.int16)}, "label"),
+        ({"label": np.zeros(SHAPE, np.float32)}, "label"),
+        ({"label": np.full(SHAPE, 5, np.int16)}, "label"),  # id 5 not in classes
+        ({"label": np.full(SHAPE, -3, np.int16)}, "label"),
+        ({"occupancy": np.zeros((4, 5, 7), np.float32)}, "occupancy"),
+        ({"occupancy": np.full(SHAPE, np.nan, np.float32)}, "occupancy"),
+        ({"occupancy": np.full(SHAPE, 1.5, np.float32)}, "occupancy"),
+        ({"voxel_size": 0.0}, "voxel_size"),
+        ({"voxel_size": float("nan")}, "voxel_size"),
+        ({"origin": (0.0, 1.0)}, "origin"),
+        ({"occupancy_delta": -1.0}, "occupancy_delta"),
+        ({"occupancy_threshold": 2.0}, "occupancy_threshold"),
+        ({"classes": {-1: "x"}}, "classes"),
+        ({"class_colors": {5: (1, 2, 3)}}, "class_colors"),
+        ({"class_colors": {0: (1, 2, 300)}}, "class_colors"),
+        ({"frame_id": ""}, "frame_id"),
+    ],
+)
+def test_post_init_rejects(overrides, field):
+    with pytest.raises(InputError) as info:
+        make_map(**overrides)
+    assert info.value.field == field
+    assert field in str(info.value)
+
+
+def test_unknown_voxels_must_have_zero_occupancy():
+    label = np.full(SHAPE, UNKNOWN, np.int16)
+    with pytest.raises(InputError, match="UNKNOWN"):
+        make_map(label=label, occupancy=np.full(SHAPE, 0.3, np.float32))
+
+
+def test_bounds_and_corner():
+    m = make_map()
+    lo, hi = m.bounds
+    np.testing.assert_allclose(lo, [0.75, -2.25, 0.0])
+    np.testing.assert_allclose(hi, [0.75 + 2.0, -2.25 + 2.5, 3.0])
+    np.testing.assert_allclose(m.origin_corner, lo)
+
+
+# ---------------------------------------------------------------------------- index <-> world
+
+
+def test_index_world_known_points():
+    m = make_map()
+    np.testing.assert_allclose(m.world_from_index([[0, 0, 0], [1, 2, 3], [3, 4, 5]]),
+                               [[1.0, -2.0, 0.25], [1.5, -1.0, 1.75], [2.5, 0.0, 2.75]])
+    pts = np.array([
+        [1.5, -1.0, 1.75],   # centre of [1, 2, 3]
+        [1.7, -0.8, 1.95],   # inside [1, 2, 3], off-centre
+        [1.74, -1.24, 1.51],  # near the min corner of [1, 2, 3]
+        [0.75, -2.25, 0.0],  # min corner of the grid: voxel [0, 0, 0]
+        [1.25, -2.0, 0.25],  # on the face between [0,0,0] and [1,0,0]: the higher index
+    ])
+    idx, inside = m.index_from_world(pts)
+    np.testing.assert_array_equal(idx, [[1, 2, 3], [1, 2, 3], [1, 2, 3], [0, 0, 0], [1, 0, 0]])
+    assert inside.all()
+    assert idx.dtype == np.int64
+    # inverse on every voxel centre
+    ijk = np.stack(np.meshgrid(*(np.arange(n) for n in SHAPE), indexing="ij"), -1).reshape(-1, 3)
+    back, inside = m.index_from_world(m.world_from_index(ijk))
+    np.testing.assert_array_equal(back, ijk)
+    assert inside.all()
+
+
+def test_points_outside():
+    m = make_map()
+    lo, hi = m.bounds
+    pts = np.array([
+        lo - 1e-9,                 # just below the min corner
+        hi,                        # the max corner is outside (half-open voxels)
+        [1.5, -1.0, 100.0],
+        [np.nan, 0.0, 0.0],
+        [np.inf, 0.0, 0.0],
+        [1e300, 0.0, 0.0],
+    ])
+    idx, inside = m.index_from_world(pts)
+    assert not inside.any()
+    np.testing.assert_array_equal(idx[3], [-1, -1, -1])
+    assert np.all(m.label_at(pts) == UNKNOWN)
+    assert np.all(m.occupancy_at(pts) == 0)
+
+
+def test_label_at_and_occupancy_at():
+    m = make_map()
+    pts = np.array([[1.7, -0.8, 1.95], [1.0, -2.0, 0.25], [-5.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(m.label_at(pts), [7, m.label[0, 0, 0], UNKNOWN])
+    np.testing.assert_array_equal(m.occupancy_at(pts), [0.875, m.occupancy[0, 0, 0], 0.0])
+    assert m.label_at(pts).dtype == np.int16
+
+
+def test_pure_functions_match_methods():
+    m = make_map()
+    pts = np.random.default_rng(1).uniform(-1, 4, size=(50, 3))
+    a = index_from_world(pts, ORIGIN, VOXEL, SHAPE)
+    b = m.index_from_world(pts)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_allclose(world_from_index(a[0], ORIGIN, VOXEL), m.world_from_index(a[0]))
+
+
+# ---------------------------------------------------------------------------- lattice / chunks
+
+
+@pytest.mark.parametrize(
+    "lo, hi, vs",
+    [
+        ((0, 0, 0), (1, 1, 1), 0.1),
+        ((-1.3, 2.0, 0.7), (2.9, 2.05, 0.7), 0.25),  # thin and degenerate axes
+        ((-0.05, -0.05, -0.05), (0.05, 0.05, 0.05), 1.0),  # box smaller than a voxel
+        ((10, 20, 30), (13, 21, 30.5), 0.5),
+    ],
+)
+def test_lattice_covers_box_with_centres_inside(lo, hi, vs):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    origin, shape = lattice(lo, hi, vs)
+    assert all(isinstance(n, int) and n >= 1 for n in shape)
+    cover_lo = origin - vs / 2
+    cover_hi = origin + vs * (np.asarray(shape) - 1) + vs / 2
+    tol = 1e-6 * vs
+    assert np.all(cover_lo <= lo + tol) and np.all(cover_hi >= hi - tol)
+    first, last = origin, origin + vs * (np.asarray(shape) - 1)
+    assert np.all(first >= lo - 1e-12) and np.all(last <= hi + 1e-12)
+    # not wasteful: one voxel fewer would not cover
+    assert np.all((np.asarray(shape) - 1) * vs < np.maximum(hi - lo, 1e-300) + tol)
+
+
+def test_lattice_exact_count_and_limits():
+    origin, shape = lattice((0, 0, 0), (1, 2, 3), 0.1)
+    assert shape == (10, 20, 30)
+    np.testing.assert_allclose(origin, [0.05, 0.05, 0.05])
+    with pytest.raises(InputError, match="voxel"):
+        lattice((0, 0, 0), (10, 10, 10), 0.01, max_voxels=1_000_000)
+    with pytest.raises(InputError):
+        lattice((1, 0, 0), (0, 1, 1), 0.1)
+    with pytest.raises(InputError):
+        lattice((0, 0, 0), (1, 1, 1), 0.0)
+
+
+@pytest.mark.parametrize("shape, chunk", [((5, 7, 3), 2), ((4, 4, 4), (4, 4, 4)), ((1, 9, 2), (3, 4, 5)), ((6, 1, 1), 64)])
+def test_iter_chunks_covers_each_index_once(shape, chunk):
+    count = np.zeros(shape, np.int64)
+    chunks = (chunk,) * 3 if isinstance(chunk, int) else chunk
+    for sl in iter_chunks(shape, chunk):
+        assert all(s.stop - s.start <= c for s, c in zip(sl, chunks))
+        for i, j, k in itertools.product(*(range(s.start, s.stop) for s in sl)):
+            count[i, j, k] += 1
+    assert np.all(count == 1)
+
+
+def test_voxel_centers_blocks_match_grid():
+    m = make_map()
+    seen = np.zeros(SHAPE, np.int64)
+    for sl, centres in voxel_centers(ORIGIN, VOXEL, SHAPE, chunk=(3, 2, 4)):
+        block = tuple(s.stop - s.start for s in sl)
+        assert centres.shape == (int(np.prod(block)), 3)
+        idx, inside = m.index_from_world(centres)
+        assert inside.all()
+        # C order: reshaping the values fits grid[sl]
+        expected = np.stack(np.meshgrid(*(np.arange(s.start, s.stop) for s in sl), indexing="ij"), -1)
+        np.testing.assert_array_equal(idx.reshape(*block, 3), expected)
+        seen[sl] += 1
+    assert np.all(seen == 1)
+
+
+# ---------------------------------------------------------------------------- zarr round trip
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_round_trip(tmp_path, zarr_format):
+    m = make_map()
+    out = m.to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format, chunks=(2, 3, 4))
+    assert out == (tmp_path / "map.zarr").absolute()
+    back = OccupancyMap.from_zarr(out)
+    np.testing.assert_array_equal(back.label, m.label)
+    np.testing.assert_array_equal(back.occupancy, m.occupancy)
+    assert back.label.dtype == np.int16 and back.occupancy.dtype == np.float32
+    assert back.attributes() == m.attributes()
+    assert back.classes == m.classes and back.class_colors == m.class_colors
+    assert back == m
+    group = zarr.open_group(str(out), mode="r")
+    assert group.metadata.zarr_format == zarr_format
+    assert group.attrs.asdict() == m.attributes()
+    for name in ("label", "occupancy"):
+        array = group[name]
+        assert array.chunks == (2, 3, 4)
+        if zarr_format == 3:
+            assert tuple(array.metadata.dimension_names) == ("x", "y", "z")
+        else:
+            assert array.attrs["_ARRAY_DIMENSIONS"] == ["x", "y", "z"]
+    # nothing left beside the map
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.zarr"]
+
+
+def test_round_trip_without_colors(tmp_path):
+    m = make_map(class_colors=None)
+    back = OccupancyMap.from_zarr(m.to_zarr(tmp_path / "m.zarr"))
+    assert back.class_colors is None and back == m
+
+
+def test_overwrite_and_refusals(tmp_path):
+    target = tmp_path / "map.zarr"
+    make_map().to_zarr(target)
+    second = make_map(frame_id="odom", occupancy_delta=0.02)
+    second.to_zarr(target, zarr_format=2)  # replaces a v3 map by a v2 one
+    assert OccupancyMap.from_zarr(target) == second
+    assert not (target / "zarr.json").exists()  # the old store is gone, not merged
+    with pytest.raises(InputError, match="already exists"):
+        second.to_zarr(target, overwrite=False)
+    # never deletes something that is not a zarr group
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "thesis.tex").write_text("years of work")
+    with pytest.raises(InputError, match="not a zarr group"):
+        second.to_zarr(precious)
+    assert (precious / "thesis.tex").read_text() == "years of work"
+    with pytest.raises(InputError):
+        make_map().to_zarr(tmp_path / "m.zarr", zarr_format=4)
+
+
+# ---------------------------------------------------------------------------- plain zarr reader
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_plain_zarr_reader(tmp_path, zarr_format):
+    """What a planner does with zarr + numpy only (the snippet of docs/formats.md)."""
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+
+    g = zarr.open_group(str(path), mode="r")
+    a = g.attrs
+    assert a["format"] == "scenelabel.occupancy_map" and a["index_order"] == "ijk=xyz"
+    assert a["voxel_size"] == 0.5 and a["origin"] == [1.0, -2.0, 0.25]
+    assert a["origin_corner"] == [0.75, -2.25, 0.0]
+    assert a["free_label"] == -1 and a["unknown_label"] == -2
+    assert {c["id"]: c["name"] for c in a["classes"]} == CLASSES
+
+    p = np.array([1.7, -0.8, 1.95])  # hand-computed: voxel [1, 2, 3], centre (1.5, -1.0, 1.75)
+    ijk = np.floor((p - np.array(a["origin"])) / a["voxel_size"] + 0.5).astype(int)
+    assert ijk.tolist() == [1, 2, 3]
+    assert int(g["label"][tuple(ijk)]) == 7
+    assert float(g["occupancy"][tuple(ijk)]) == 0.875
+    # corner form gives the same voxel
+    ijk_corner = np.floor((p - np.array(a["origin_corner"])) / a["voxel_size"]).astype(int)
+    assert ijk_corner.tolist() == [1, 2, 3]
+    # voxel -> world
+    centre = np.array(a["origin"]) + a["voxel_size"] * np.array([1, 2, 3])
+    np.testing.assert_allclose(centre, [1.5, -1.0, 1.75])
+
+
+# ---------------------------------------------------------------------------- schema
+
+
+def test_schema_is_valid_and_documented():
+    import jsonschema
+
+    schema = maps.load_schema()
+    jsonschema.Draft202012Validator.check_schema(schema)
+    assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
+    assert schema["additionalProperties"] is True
+    assert set(schema["required"]) == set(make_map().attributes())
+    for name, prop in schema["properties"].items():
+        assert prop.get("description"), f"{name} has no description"
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_written_attributes_validate(tmp_path, zarr_format):
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    attrs = zarr.open_group(str(path), mode="r").attrs.asdict()
+    validate_attributes(attrs)
+    validate_attributes({**attrs, "some_future_key": {"x": 1}})  # forward compatible
+
+
+def test_broken_attributes_fail():
+    attrs = make_map().attributes()
+    missing = {k: v for k, v in attrs.items() if k != "voxel_size"}
+    with pytest.raises(InputError, match="voxel_size") as info:
+        validate_attributes(missing, path="x.zarr")
+    assert info.value.field == "voxel_size" and "x.zarr" in str(info.value)
+    with pytest.raises(InputError, match="voxel_size"):
+        validate_attributes({**attrs, "voxel_size": "0.5"})
+    with pytest.raises(InputError, match="origin"):
+        validate_attributes({**attrs, "origin": [1.0, 2.0]})
+    with pytest.raises(InputError, match="free_label"):
+        validate_attributes({**attrs, "free_label": 0})
+    with pytest.raises(InputError, match="classes"):
+        validate_attributes({**attrs, "classes": [{"id": "1", "name": "a"}]})
+    with pytest.raises(InputError, match="unique"):
+        validate_attributes({**attrs, "classes": [{"id": 1, "name": "a"}, {"id": 1, "name": "b"}]})
+
+
+def _edit_attrs(path: Path, zarr_format: int, edit) -> None:
+    g = zarr.open_group(str(path), mode="r+", zarr_format=zarr_format)
+    attrs = g.attrs.asdict()
+    edit(attrs)
+    g.attrs.clear()
+    g.attrs.update(attrs)
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_from_zarr_errors_name_path_and_attribute(tmp_path, zarr_format):
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    _edit_attrs(path, zarr_format, lambda a: a.pop("occupancy_delta"))
+    with pytest.raises(InputError) as info:
+        OccupancyMap.from_zarr(path)
+    assert str(path) in str(info.value) and "occupancy_delta" in str(info.value)
+
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    _edit_attrs(path, zarr_format, lambda a: a.update(format="someone.else"))
+    with pytest.raises(InputError, match="format"):
+        OccupancyMap.from_zarr(path)
+
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    _edit_attrs(path, zarr_format, lambda a: a.update(format_version=99))
+    with pytest.raises(InputError, match="newer"):
+        OccupancyMap.from_zarr(path)
+
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    _edit_attrs(path, zarr_format, lambda a: a.update(origin_corner=[0.0, 0.0, 0.0]))
+    with pytest.raises(InputError, match="origin_corner"):
+        OccupancyMap.from_zarr(path)
+
+
+def test_from_zarr_not_a_map(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        OccupancyMap.from_zarr(tmp_path / "nothing.zarr")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError) as info:
+        OccupancyMap.from_zarr(tmp_path / "empty")
+    assert "empty" in str(info.value)
+    other = zarr.open_group(str(tmp_path / "other.zarr"), mode="w")
+    other.attrs["hello"] = 1
+    with pytest.raises(InputError, match="format"):
+        OccupancyMap.from_zarr(tmp_path / "other.zarr")
+
+
+# ---------------------------------------------------------------------------- atomic write
+
+
+class _Crash(RuntimeError):
+    pass
+
+
+def _crash_on_second_array_write(monkeypatch):
+    """Make zarr.Array.__setitem__ write the first array, then raise on the second."""
+    original = zarr.Array.__setitem__
+    calls = {"n": 0}
+
+    def flaky(self, key, value):
+        calls["n"] += 1
+        if calls["n"] >= 2:
+            raise _Crash("simulated crash while writing")
+        return original(self, key, value)
+
+    monkeypatch.setattr(zarr.Array, "__setitem__", flaky)
+    return calls
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_crash_keeps_previous_map(tmp_path, monkeypatch, zarr_format):
+    target = tmp_path / "map.zarr"
+    previous = make_map()
+    previous.to_zarr(target, zarr_format=zarr_format)
+
+    newer = make_map(frame_id="newer", label=np.full(SHAPE, FREE, np.int16))
+    with monkeypatch.context() as mp:
+        calls = _crash_on_second_array_write(mp)
+        with pytest.raises(_Crash):
+            newer.to_zarr(target, zarr_format=zarr_format)
+        assert calls["n"] == 2  # it did crash midway, after one array was written
+
+    assert OccupancyMap.from_zarr(target) == previous
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.zarr"]  # temp folder cleaned up
+
+
+def test_crash_without_cleanup_leaves_no_complete_looking_map(tmp_path, monkeypatch):
+    """As if the process were killed: the cleanup never runs, the temp folder stays."""
+    target = tmp_path / "map.zarr"
+    previous = make_map()
+    previous.to_zarr(target)
+    with monkeypatch.context() as mp:
+        _crash_on_second_array_write(mp)
+        mp.setattr(maps, "_remove", lambda path: None)
+        with pytest.raises(_Crash):
+            make_map(frame_id="newer").to_zarr(target)
+
+    leftovers = [p for p in tmp_path.iterdir() if p.name != "map.zarr"]
+    assert leftovers and all(p.name.startswith(".map.zarr.tmp-") for p in leftovers)
+    for p in leftovers:
+        with pytest.raises(InputError, match="format"):
+            OccupancyMap.from_zarr(p)
+    assert OccupancyMap.from_zarr(target) == previous
+    # the next write recovers: the stale temp folder of this pid is replaced, then renamed away
+    make_map(frame_id="next").to_zarr(target)
+    assert OccupancyMap.from_zarr(target).frame_id == "next"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.zarr"]
+
+
+def test_crash_on_first_write_to_new_path(tmp_path, monkeypatch):
+    target = tmp_path / "fresh.zarr"
+
+    def boom(self, key, value):
+        raise _Crash("disk full")
+
+    monkeypatch.setattr(zarr.Array, "__setitem__", boom)
+    with pytest.raises(_Crash):
+        make_map().to_zarr(target)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_attributes_are_json():
+    attrs = make_map().attributes()
+    assert json.loads(json.dumps(attrs)) == attrs
+    assert attrs["classes"] == [
+        {"id": 0, "name": "floor", "color": [10, 20, 30]},
+        {"id": 3, "name": "chair", "color": None},
+        {"id": 7, "name": "table", "color": [255, 0, 128]},
+    ]
+
+
+def test_docs_planner_snippet_runs(tmp_path, monkeypatch):
+    """The zarr-only snippet of docs/formats.md runs as written and finds the right voxel."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    section = doc.split("### Reading the map with zarr and numpy only", 1)[1]
+    snippet = section.split("```python", 1)[1].split("```", 1)[0]
+    assert "scenelabel" not in snippet
+    make_map().to_zarr(tmp_path / "map.zarr")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(snippet, "docs/formats.md", "exec"), namespace)
+    assert namespace["ijk"].tolist() == [1, 2, 3] and namespace["label"] == 7
