@@ -34,7 +34,7 @@ class FieldConfig:
     grid_resolution: int = 96  # dense grid side
     hidden: int = 64  # width of the heads' hidden layers
     view_dependent: bool = True  # colour depends on view direction (SH degree 2)
-    density_bias: float = -1.0  # σ = softplus(raw + density_bias): low initial density
+    density_bias: float = -1.0  # σ = exp(raw + density_bias) (trunc_exp): low initial density
 
 
 @dataclass

@@ -157,8 +157,10 @@ class SemanticField:
 
     @property
     def occupancy_delta(self) -> float:
-        """δ (world units) in occupancy = 1 - exp(-σ δ): the training marching step."""
-        return self._step_n / self.frame.scale
+        """δ (world units) in occupancy = 1 - exp(-σ δ): the default voxel size, i.e. the smallest
+        length the training images resolve (see :meth:`default_voxel_size`). A point is occupied
+        when a slab of that thickness there would be at least half opaque."""
+        return self.default_voxel_size()
 
     # ------------------------------------------------------------------ points
     def _tensor(self, array: np.ndarray) -> torch.Tensor:
@@ -348,10 +350,12 @@ class SemanticField:
     def occupancy_map(self, voxel_size: float | None = None, bounds=None, chunk: int = 32) -> OccupancyMap:
         """Evaluate the field on a voxel lattice, in chunks (bounded memory).
 
-        A voxel is occupied when any of its sub-samples (a regular n³ pattern, n chosen so that
-        samples are no further apart than half the field's finest cell, at most MAX_SUBSAMPLES)
-        has occupancy ≥ 0.5; it then carries the class of its densest sub-sample. Voxels whose
-        centre lies outside the modelled bounds are UNKNOWN.
+        A voxel's occupancy is the opacity of crossing it at its largest density,
+        1 - exp(-max σ · voxel_size), the maximum taken over a regular n³ pattern of sub-samples
+        (n chosen so that samples are no further apart than half the field's finest cell, at most
+        MAX_SUBSAMPLES), so a thin surface anywhere in the voxel makes it occupied. A voxel with
+        occupancy ≥ 0.5 carries the class of its densest sub-sample, others are FREE; voxels whose
+        centre lies outside the modelled bounds are UNKNOWN (occupancy 0).
 
         Args:
             voxel_size: voxel edge in world units (default: :meth:`default_voxel_size`).
@@ -376,7 +380,7 @@ class SemanticField:
             sig_n, probs = self._semantics_n(self.frame.to_internal(pts))
             sig_n = sig_n.reshape(-1, len(offsets))
             densest = sig_n.argmax(-1)
-            occ = -np.expm1(-sig_n.max(-1) * self._step_n)
+            occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)
             cls = probs.reshape(len(sig_n), len(offsets), -1)[np.arange(len(sig_n)), densest].argmax(-1)
             block_label = np.full(len(centres), UNKNOWN, dtype=np.int16)
             block_occ = np.zeros(len(centres), dtype=np.float32)
@@ -391,7 +395,7 @@ class SemanticField:
             voxel_size=voxel_size,
             origin=origin,
             classes=self.classes,
-            occupancy_delta=self.occupancy_delta,
+            occupancy_delta=voxel_size,
             class_colors={i: tuple(colors[i]) for i in self.class_map.ids.tolist() if i in colors} or None,
             frame_id=self.meta.get("frame_id", "world"),
             occupancy_threshold=OCCUPIED_THRESHOLD,

@@ -68,7 +68,7 @@ def test_query_points_inside_boxes_and_above(toy_build):
         q = field.query_points(top)
         assert np.mean(q.label == class_id) >= 0.8, q.label
         np.testing.assert_allclose(q.probs.sum(-1), 1.0, atol=1e-6)
-        above = centre + np.array([0, 0, hi[2] - centre[2] + 0.25])
+        above = np.array([centre[0], centre[1], hi[2] + 0.1])  # still inside the modelled bounds
         assert field.query_points(above[None]).label[0] == FREE
     far_away = field.query_points(np.array([[50.0, 50.0, 50.0]]))
     assert far_away.label[0] == UNKNOWN and far_away.density[0] == 0.0

@@ -39,7 +39,7 @@ class TriPlane(nn.Module):
             F.grid_sample(planes, coords, mode="bilinear", padding_mode="border", align_corners=True)
             for planes in self.planes
         ]  # each [3, C, 1, n]
-        return torch.cat([f.reshape(-1, n) for f in feats]).T.contiguous()
+        return torch.cat([f.reshape(f.shape[0] * f.shape[1], n) for f in feats]).T.contiguous()
 
 
 class DenseGrid(nn.Module):
@@ -52,11 +52,11 @@ class DenseGrid(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x: [n, 3] in [-1, 1] -> [n, channels]."""
-        # grid_sample 3D takes (x, y, z) -> (W, H, D); the grid is stored [D=z?]: we index [x, y, z]
-        # as (D, H, W) = (x, y, z), so pass coordinates reversed.
+        # The grid is stored [C, X, Y, Z], i.e. grid_sample's (D, H, W) = (x, y, z); grid_sample's
+        # coordinate triple is (W, H, D), so pass (z, y, x).
         coords = x[:, [2, 1, 0]].reshape(1, 1, 1, -1, 3)
         out = F.grid_sample(self.grid, coords, mode="bilinear", padding_mode="border", align_corners=True)
-        return out.reshape(self.grid.shape[1], -1).T
+        return out.reshape(self.grid.shape[1], x.shape[0]).T.contiguous()
 
 
 class Positional(nn.Module):

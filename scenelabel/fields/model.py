@@ -14,9 +14,30 @@ from ..config import FieldConfig
 from ..errors import ConfigError
 from .encodings import DenseGrid, TriPlane, sh_directions
 
-__all__ = ["SemanticField3D", "build_encoding"]
+__all__ = ["SemanticField3D", "build_encoding", "trunc_exp"]
 
 SH_DIM = 9
+TRUNC_EXP_MAX = 15.0
+"""trunc_exp's backward clamps its input at this value so that gradients stay finite (exp(15) ≈ 3e6)."""
+
+
+class _TruncExp(torch.autograd.Function):
+    """exp(x) with the gradient of exp(min(x, TRUNC_EXP_MAX)) (instant-ngp's density activation)."""
+
+    @staticmethod
+    def forward(ctx, x):
+        ctx.save_for_backward(x)
+        return torch.exp(x)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        return grad * torch.exp(x.clamp(max=TRUNC_EXP_MAX))
+
+
+def trunc_exp(x: torch.Tensor) -> torch.Tensor:
+    """exp(x), its gradient computed with x clamped at TRUNC_EXP_MAX."""
+    return _TruncExp.apply(x)
 
 
 def build_encoding(config: FieldConfig) -> nn.Module:
@@ -57,7 +78,7 @@ class SemanticField3D(nn.Module):
 
     def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         out = self.trunk(self.encoding(self._unit(points)))
-        sigmas = F.softplus(out[:, 0] + self.config.density_bias)
+        sigmas = trunc_exp(out[:, 0] + self.config.density_bias)
         return sigmas, F.relu(out[:, 1:])
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
