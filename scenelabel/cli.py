@@ -47,9 +47,11 @@ def _overrides(args: argparse.Namespace) -> dict:
     return overrides
 
 
-def _add_build_options(p: argparse.ArgumentParser) -> None:
+def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast") -> None:
     p.add_argument("--out", help="output folder (default: SCENE/scenelabel)")
-    p.add_argument("--preset", default="fast", choices=sorted(PRESETS), help="model/training preset")
+    p.add_argument(
+        "--preset", default=default_preset, choices=sorted(PRESETS), help=f"model/training preset (default: {default_preset})"
+    )
     p.add_argument("--steps", type=int, help="training steps")
     p.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds")
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
@@ -122,7 +124,7 @@ def make_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="generate the toy two-box scene and build it end to end")
     p.add_argument("path", nargs="?", default="toy_scene", help="where to write the toy scene (default: ./toy_scene)")
-    _add_build_options(p)
+    _add_build_options(p, default_preset="quick")  # the toy scene is small: a ~30 s build
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("toy", help="write a synthetic scene folder (exact labels and depth)")

@@ -30,7 +30,7 @@ class FieldConfig:
 
     encoding: str = "triplane"  # triplane | dense
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
-    channels: int = 16  # features per plane / voxel
+    channels: int = 8  # features per plane / voxel
     grid_resolution: int = 96  # dense grid side
     hidden: int = 64  # width of the heads' hidden layers
     view_dependent: bool = True  # colour depends on view direction (SH degree 2)
@@ -41,7 +41,7 @@ class FieldConfig:
 class SamplingConfig:
     """Where samples go along rays and how empty space is skipped."""
 
-    n_steps: int = 256  # marching steps across the scene box diagonal (sets the step size)
+    n_steps: int = 192  # marching steps across the scene box diagonal (sets the step size)
     grid_resolution: int = 64  # occupancy grid side
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
@@ -53,8 +53,8 @@ class SamplingConfig:
 class TrainConfig:
     """The optimisation loop."""
 
-    steps: int = 1500
-    batch_rays: int = 2048
+    steps: int = 2000
+    batch_rays: int = 1024
     lr_encoding: float = 2e-2
     lr_mlp: float = 5e-3
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
@@ -89,11 +89,11 @@ class BuildConfig:
 
 
 PRESETS: dict[str, dict] = {
-    "fast": {},
+    "fast": {},  # the default: tri-plane 64+128 x 8 channels, 1024-ray batches
     "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
         "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},
         "sampling": {"n_steps": 128, "grid_resolution": 32, "grid_warmup": 16},
-        "train": {"steps": 300, "batch_rays": 1024},
+        "train": {"steps": 500},
     },
 }
 

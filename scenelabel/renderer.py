@@ -104,8 +104,10 @@ def render_rays(
     class_logits = points.new_zeros(t_min.shape[0], K, field.num_classes).index_put(at, l)
     weights, _, _ = weights_from_density(sigmas, t_ends - t_starts)
     rgb = composite_rgb(weights, rgbs, background) if with_rgb else None
-    t_lo = torch.minimum(t_min, t_max)
-    depth = depth_from_weights(weights, t_mids, t_lo, torch.maximum(t_min, t_max))
+    # A ray whose interval is empty (t_max < t_min: it misses the box or [near, far]) reports its
+    # t_max (≥ 0): the requested far, or where it leaves the box.
+    t_hi = t_max.clamp(min=0.0)
+    depth = depth_from_weights(weights, t_mids, torch.minimum(t_min, t_hi), t_hi)
     return RayBundleOutput(
         rgb=rgb,
         depth=depth,

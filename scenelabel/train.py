@@ -26,8 +26,9 @@ from .scene import ClassMap, Scene
 
 __all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
 
-GRID_ALL_CELLS_STEPS = 256
-"""Occupancy-grid refreshes visit every cell until this step, then occupied + random cells."""
+GRID_ALL_CELLS_UPDATES = 4
+"""The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
+a random quarter (each full refresh of a 64³ grid costs as much as several training steps)."""
 
 
 @dataclass
@@ -124,9 +125,16 @@ class Trainer:
         self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
         self.state = TrainState()
 
-    def _set_lr(self, step: int) -> None:
+    def progress(self) -> float:
+        """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
         tc = self.config.train
-        factor = tc.lr_final_ratio ** (step / max(tc.steps, 1))
+        done = self.state.step / max(tc.steps, 1)
+        if tc.time_budget:
+            done = max(done, self.state.elapsed / tc.time_budget)
+        return min(done, 1.0)
+
+    def _set_lr(self) -> None:
+        factor = self.config.train.lr_final_ratio ** self.progress()
         for group, base in zip(self.optimizer.param_groups, self.base_lrs):
             group["lr"] = base * factor
 
@@ -135,9 +143,10 @@ class Trainer:
         tc, sc = self.config.train, self.config.sampling
         step = self.state.step
         if step >= sc.grid_warmup and step % sc.grid_update_every == 0:
-            all_cells = step < GRID_ALL_CELLS_STEPS
+            n_updates = (step - sc.grid_warmup) // sc.grid_update_every
+            all_cells = n_updates < GRID_ALL_CELLS_UPDATES
             self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
-        self._set_lr(step)
+        self._set_lr()
         pick = torch.randint(len(self.ray_pool), (tc.batch_rays,), generator=self.generator)
         idx = self.ray_pool[pick.to(self.device)]
         jitter = torch.rand(tc.batch_rays, generator=self.generator).to(self.device)

@@ -1,0 +1,121 @@
+"""SemanticField's public surface on a small trained field: shapes, conventions, input checks."""
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from scenelabel import FREE, UNKNOWN, InputError, SemanticField, build, preset, write_toy_scene
+from scenelabel.errors import CheckpointError
+
+
+@pytest.fixture(scope="module")
+def field(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sf")
+    scene = write_toy_scene(root / "scene", n_train=14, n_test=2, width=48, height=36)
+    config = preset("quick", {"train": {"steps": 150}, "output": {"write_map": False, "write_renders": False}})
+    build(scene, root / "out", config, progress=False)
+    return SemanticField.load(root / "out")
+
+
+def test_query_points_shapes_and_ranges(field):
+    pts = np.random.default_rng(0).uniform(field.aabb[0] - 0.5, field.aabb[1] + 0.5, (500, 3))
+    q = field.query_points(pts)
+    assert q.density.shape == (500,) and q.occupancy.shape == (500,) and q.label.shape == (500,)
+    assert q.probs.shape == (500, 3) and q.class_ids.tolist() == [1, 3, 7]
+    assert np.all((q.occupancy >= 0) & (q.occupancy <= 1))
+    inside = np.all((pts >= field.aabb[0]) & (pts <= field.aabb[1]), axis=1)
+    assert np.all(q.label[~inside] == UNKNOWN)
+    assert set(np.unique(q.label[inside]).tolist()) <= {FREE, 1, 3, 7}
+    np.testing.assert_allclose(q.probs[inside].sum(-1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(q.occupancy, -np.expm1(-q.density * field.occupancy_delta))
+
+
+def test_torch_input_and_single_point(field):
+    a = field.query_points(torch.tensor([[0.0, 0.0, 0.1]]))
+    b = field.query_points(np.array([0.0, 0.0, 0.1]))
+    np.testing.assert_array_equal(a.density, b.density)
+
+
+@pytest.mark.parametrize(
+    "bad,match",
+    [(np.zeros((4, 2)), r"shape \(N, 3\)"), (np.array([[0.0, np.nan, 0.0]]), "non-finite"), (np.full((1, 3), np.inf), "non-finite")],
+)
+def test_bad_query_inputs(field, bad, match):
+    with pytest.raises(InputError, match=match):
+        field.query_points(bad)
+    with pytest.raises(InputError, match=match):
+        field.query_rays(bad, np.ones_like(bad))
+
+
+def test_query_rays_direction_length_does_not_matter(field):
+    o = np.array([[0.0, -2.0, 1.5], [1.0, 1.0, 1.0]])
+    d = np.array([[0.0, 1.0, -0.8], [-0.5, -0.4, -1.0]])
+    a = field.query_rays(o, d)
+    b = field.query_rays(o, d * 7.5)
+    np.testing.assert_allclose(a.depth, b.depth, rtol=1e-5)
+    np.testing.assert_array_equal(a.label, b.label)
+    assert a.rgb.shape == (2, 3) and a.probs.shape == (2, 3)
+    with pytest.raises(InputError, match="zero-length"):
+        field.query_rays(o, np.zeros((2, 3)))
+
+
+def test_near_far_limits_depth(field):
+    o = np.array([[0.0, -2.0, 1.5]])
+    d = np.array([[0.0, 1.0, -0.8]])
+    r = field.query_rays(o, d, near=0.5, far=0.6)
+    assert 0.5 - 1e-6 <= r.depth[0] <= 0.6 + 1e-6
+
+
+def test_render_shapes_conventions_and_smoothing(field):
+    c2w_gl = np.eye(4)
+    c2w_gl[:3, 3] = [0.0, 0.0, 3.0]  # OpenGL: looks down -z, i.e. at the floor
+    img = field.render(c2w_gl, 16, 12, 14.0, convention="opengl")
+    assert img.rgb.shape == (12, 16, 3) and img.depth.shape == (12, 16) and img.label.shape == (12, 16)
+    c2w_cv = c2w_gl @ np.diag([1.0, -1.0, -1.0, 1.0])
+    same = field.render(c2w_cv, 16, 12, 14.0)
+    np.testing.assert_allclose(img.depth, same.depth, rtol=1e-5)
+    smooth = field.render(c2w_cv, 16, 12, 14.0, smooth_sigma=2.0)
+    np.testing.assert_allclose(smooth.probs.sum(-1), 1.0, atol=1e-9)
+    with pytest.raises(InputError, match="convention"):
+        field.render(c2w_cv, 4, 4, 4.0, convention="blender")
+
+
+def test_concurrent_queries_match_sequential(field):
+    pts = np.random.default_rng(1).uniform(field.aabb[0], field.aabb[1], (4, 2000, 3))
+    expected = [field.query_points(p).density for p in pts]
+    results = [None] * 4
+
+    def work(i):
+        results[i] = field.query_points(pts[i]).density
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for got, want in zip(results, expected):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_occupancy_map_bounds_and_codes(field):
+    occ = field.occupancy_map(voxel_size=0.1, bounds=np.array([[-0.5, -0.5, 0.0], [0.5, 0.5, 0.5]]))
+    assert occ.voxel_size == 0.1 and occ.occupancy_delta == 0.1
+    assert occ.shape == (10, 10, 5)
+    assert set(np.unique(occ.label).tolist()) <= {FREE, UNKNOWN, 1, 3, 7}
+    with pytest.raises(InputError, match="voxel_size"):
+        field.occupancy_map(voxel_size=-1.0)
+
+
+def test_incompatible_checkpoint_version(tmp_path):
+    data = {"format": "scenelabel.checkpoint", "format_version": 999}
+    path = tmp_path / "checkpoint.pt"
+    torch.save(data, path)
+    with pytest.raises(CheckpointError, match="not supported"):
+        SemanticField.load(tmp_path)
+    path.write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="unreadable"):
+        SemanticField.load(path)
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        SemanticField.load(tmp_path / "missing")
