@@ -30,7 +30,7 @@ from .fields.model import SemanticField3D
 from .frame import SceneFrame, aabb_from_cameras
 from .io import load_scene
 from .metrics import confusion_matrix, depth_error, miou, psnr, ssim
-from .postprocess import colorize_labels, side_by_side
+from .postprocess import colorize_labels, side_by_side, smooth_class_probs
 from .sampling import OccupancyGrid
 from .scene import ClassMap, Scene
 from .semantic_field import SemanticField
@@ -101,13 +101,15 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     colors = field.meta.get("class_colors") or {}
     for i in test:
         out = field.render_camera(scene.cameras, i)
-        smoothed = field.render_camera(scene.cameras, i, smooth_sigma=smooth_sigma) if smooth_sigma else out
+        # the smoothing is post-processing of the rendered class probabilities: no second render
+        smooth_ids = field.class_map.ids_from_channels(smooth_class_probs(out.probs, smooth_sigma).argmax(-1))
+        smoothed_label = np.where(out.label >= 0, smooth_ids, out.label)
         gt = scene.images[i]
         view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt)}
         label = scene.labels[i]
         if label is not None:
             conf += confusion_matrix(out.label, label, class_ids, ignore)
-            conf_smooth += confusion_matrix(smoothed.label, label, class_ids, ignore)
+            conf_smooth += confusion_matrix(smoothed_label, label, class_ids, ignore)
             view["miou"] = miou(confusion_matrix(out.label, label, class_ids, ignore))[0]
         depth = scene.depths[i]
         if depth is not None:
@@ -118,7 +120,7 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         if renders_dir is not None:
             panels = [gt, out.rgb]
             panels = [(np.clip(p, 0, 1) * 255 + 0.5).astype(np.uint8) for p in panels]
-            panels += [colorize_labels(out.label, colors), colorize_labels(smoothed.label, colors)]
+            panels += [colorize_labels(out.label, colors), colorize_labels(smoothed_label, colors)]
             if label is not None:
                 panels.append(colorize_labels(label, colors, ignore_index=ignore))
             Image.fromarray(side_by_side(panels)).save(renders_dir / f"{scene.names[i]}.png")

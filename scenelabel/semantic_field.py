@@ -20,6 +20,7 @@ from .checkpoint import load_checkpoint
 from .config import config_from_dict
 from .errors import InputError
 from .fields.model import SemanticField3D
+from .io.transforms_json import opengl_to_opencv
 from .frame import SceneFrame
 from .maps import FREE, UNKNOWN, OccupancyMap, iter_chunks, lattice
 from .postprocess import smooth_class_probs
@@ -38,8 +39,6 @@ MAX_MAP_VOXELS = 256**3 * 4
 
 MAX_SUBSAMPLES = 4
 """At most this many sub-samples per voxel axis when evaluating a map."""
-
-OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 @dataclass
@@ -305,7 +304,7 @@ class SemanticField:
         if c2w.shape != (4, 4):
             raise InputError(f"c2w must be 4x4 or 3x4, got {c2w.shape}", field="c2w")
         if convention == "opengl":
-            c2w = c2w @ OPENGL_TO_OPENCV
+            c2w = opengl_to_opencv(c2w)
         elif convention != "opencv":
             raise InputError(f"convention must be 'opencv' or 'opengl', got {convention!r}", field="convention")
         fx, fy = (focal, focal) if np.isscalar(focal) else focal
