@@ -7,7 +7,7 @@ checkpoint (:func:`config_to_dict`).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from .errors import ConfigError
 
@@ -59,6 +59,7 @@ class TrainConfig:
     lr_mlp: float = 5e-3
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
+    class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
     time_budget: float | None = None  # seconds; training stops early when spent
     seed: int = 0
     holdout: int = 8  # every holdout-th view is held out for evaluation; 0 = train on all

@@ -132,7 +132,7 @@ class SemanticField:
     @staticmethod
     def from_checkpoint(data: dict, device: str | torch.device | None = None) -> "SemanticField":
         device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        config = config_from_dict({k: v for k, v in data["config"].items()})
+        config = config_from_dict(data["config"])
         class_map = ClassMap.from_dict(data["class_map"])
         aabb_n = torch.as_tensor(np.asarray(data["aabb_internal"]), dtype=torch.float32)
         model = SemanticField3D(config.field, class_map.num_classes, aabb_n)

@@ -18,7 +18,7 @@ from .config import BuildConfig
 from .errors import TrainingError
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
-from .losses import photometric_mse, semantic_cross_entropy
+from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy
 from .rays import rays_from_cameras
 from .renderer import ray_intervals, render_rays
 from .sampling import OccupancyGrid
@@ -121,6 +121,9 @@ class Trainer:
             fused=fused,
         )
         self.base_lrs = [tc.lr_encoding, tc.lr_mlp]
+        self.class_weights = (
+            class_balance_weights(self.rays.channels, model.num_classes) if tc.class_balance else None
+        )
         self.background = None if tc.background is None else torch.tensor(tc.background, device=device)
         self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
         self.state = TrainState()
@@ -164,7 +167,7 @@ class Trainer:
             self.background,
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
-        ce = semantic_cross_entropy(out.class_log_probs, r.channels[idx])
+        ce = semantic_cross_entropy(out.class_log_probs, r.channels[idx], self.class_weights)
         loss = mse + tc.semantic_weight * ce
         if not torch.isfinite(loss):
             raise TrainingError(

@@ -1,8 +1,6 @@
 """The toy two-box scene built end to end: metrics, queries, map, zarr, CLI."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
