@@ -30,6 +30,8 @@ import numpy as np
 from PIL import Image
 
 from .errors import InputError
+from .io.transforms_json import opengl_to_opencv
+from .rays import camera_directions_from_pixels
 
 __all__ = [
     "BACKGROUND_ID",
@@ -266,12 +268,12 @@ def pixel_rays(
     Returns:
         origins [height, width, 3], unit directions [height, width, 3] (float64).
     """
-    c2w_cv = np.asarray(c2w_opengl, dtype=np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])
+    c2w_cv = opengl_to_opencv(c2w_opengl)
     u = np.arange(width, dtype=np.float64) + offsets[0]
     v = np.arange(height, dtype=np.float64) + offsets[1]
     uu, vv = np.meshgrid(u, v)  # [h, w]
-    d_cam = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones_like(uu)], axis=-1)  # [h, w, 3]
-    d_world = d_cam @ c2w_cv[:3, :3].T
+    d_cam = camera_directions_from_pixels(np.stack([uu.ravel(), vv.ravel()], -1), fx, fy, cx, cy)
+    d_world = (d_cam @ c2w_cv[:3, :3].T).reshape(height, width, 3)
     d_world /= np.linalg.norm(d_world, axis=-1, keepdims=True)
     origins = np.broadcast_to(c2w_cv[:3, 3], d_world.shape).copy()
     return origins, d_world
