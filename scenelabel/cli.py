@@ -14,11 +14,12 @@ from pathlib import Path
 
 from ._version import __version__
 from .config import PRESETS, preset
-from .errors import ScenelabelError
+from .errors import ScenelabelError, TrainingInterrupted
 
 __all__ = ["main"]
 
 EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -73,10 +74,14 @@ def _print_metrics(metrics: dict, out_dir: Path) -> None:
 
 
 def _cmd_build(args: argparse.Namespace) -> None:
-    from .pipeline import build
+    from .pipeline import build, resume_config
 
-    config = preset(args.preset, _overrides(args))
-    result = build(args.scene, args.out, config, progress=not args.quiet, device=args.device)
+    if args.resume:
+        out = Path(args.out) if args.out else Path(args.scene) / "scenelabel"
+        config = resume_config(out, args.steps, args.time_budget)
+    else:
+        config = preset(args.preset, _overrides(args))
+    result = build(args.scene, args.out, config, progress=not args.quiet, device=args.device, resume=args.resume)
     _print_metrics(result.metrics, result.out_dir)
 
 
@@ -120,6 +125,11 @@ def make_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("build", help="train a semantic field on a scene folder")
     p.add_argument("scene", help="scene folder (images/, labels/, classes.json, transforms.json or poses_bounds.npy)")
     _add_build_options(p)
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue from the checkpoint in the output folder, with its saved config (--steps/--time-budget may extend it)",
+    )
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("demo", help="generate the toy two-box scene and build it end to end")
@@ -147,12 +157,15 @@ def main(argv: list[str] | None = None) -> int:
     warnings.formatwarning = lambda msg, cat, *a, **k: f"scenelabel: warning: {msg}\n"
     try:
         args.func(args)
+    except TrainingInterrupted as err:
+        print(f"scenelabel: {err}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except ScenelabelError as err:
         print(f"scenelabel: error: {err}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("scenelabel: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     return 0
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["ScenelabelError", "InputError", "ConfigError", "TrainingError", "CheckpointError"]
+__all__ = ["ScenelabelError", "InputError", "ConfigError", "TrainingError", "TrainingInterrupted", "CheckpointError"]
 
 
 class ScenelabelError(Exception):
@@ -41,6 +41,10 @@ class ConfigError(ScenelabelError, ValueError):
 
 class TrainingError(ScenelabelError, RuntimeError):
     """Training cannot go on (e.g. the loss became non-finite)."""
+
+
+class TrainingInterrupted(TrainingError):
+    """Training was interrupted (Ctrl-C); a checkpoint was saved first."""
 
 
 class CheckpointError(ScenelabelError):

@@ -23,9 +23,9 @@ import torch
 from PIL import Image
 
 from ._version import __version__
-from .checkpoint import CHECKPOINT_NAME, save_checkpoint
-from .config import BuildConfig, config_to_dict, preset
-from .errors import InputError
+from .checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
+from .config import BuildConfig, config_from_dict, config_to_dict, preset
+from .errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame, aabb_from_cameras
 from .io import load_scene
@@ -36,7 +36,7 @@ from .scene import ClassMap, Scene
 from .semantic_field import SemanticField
 from .train import Trainer, rays_for_views
 
-__all__ = ["build", "BuildResult", "split_views", "default_voxel_size"]
+__all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
 
 MAP_NAME = "map.zarr"
 VOXEL_FOOTPRINT_PIXELS = 2.0
@@ -144,6 +144,25 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     return metrics
 
 
+def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
+    """Load a previous checkpoint of the same scene and config into ``trainer``."""
+    data = load_checkpoint(ckpt_path)
+    for key in ("class_map", "aabb_world", "train_views"):
+        if data.get(key) != static[key]:
+            raise CheckpointError(f"{ckpt_path}: cannot resume: the checkpoint's {key} differs from this scene's")
+    trainer.load_state_dict(data)
+
+
+def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: float | None = None) -> BuildConfig:
+    """The config saved with the checkpoint in ``out_dir``, with an optional new step count or budget."""
+    config = config_from_dict(load_checkpoint(out_dir)["config"])
+    if steps is not None:
+        config.train.steps = steps
+    if time_budget is not None:
+        config.train.time_budget = time_budget
+    return config
+
+
 def _atomic_write_text(path: Path, text: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     tmp.write_text(text)
@@ -156,6 +175,7 @@ def build(
     config: BuildConfig | None = None,
     progress: bool = True,
     device: str | None = None,
+    resume: bool = False,
 ) -> BuildResult:
     """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
 
@@ -165,6 +185,9 @@ def build(
         config: the resolved config (default: the ``fast`` preset).
         progress: show a progress bar.
         device: 'cpu', 'cuda' or None (CUDA when available).
+        resume: continue from the checkpoint in ``out_dir`` (same scene; pass its config, see
+            :func:`resume_config`). Checkpoints are written atomically every
+            ``train.checkpoint_every`` steps, at the end, and on Ctrl-C.
     Returns:
         BuildResult with the loaded SemanticField and the metrics.
     """
@@ -211,17 +234,20 @@ def build(
     }
 
     def payload(t: Trainer) -> dict:
-        return {
-            **static,
-            "model": t.model.state_dict(),
-            "occupancy": t.grid.state_dict(),
-            "optimizer": t.optimizer.state_dict(),
-            "step": t.state.step,
-            "elapsed": t.state.elapsed,
-        }
+        return {**static, **t.state_dict()}
 
     ckpt_path = out_dir / CHECKPOINT_NAME
-    state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
+    if resume:
+        _resume(trainer, ckpt_path, static)
+    try:
+        state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
+    except TrainingInterrupted as err:
+        raise TrainingInterrupted(
+            f"{err}; checkpoint saved to {ckpt_path}; continue with: scenelabel build {scene.root} --out {out_dir} --resume"
+        ) from None
+    except TrainingError as err:
+        kept = f"; the last good checkpoint is kept at {ckpt_path}" if ckpt_path.exists() else ""
+        raise TrainingError(f"{err}{kept}") from None
     save_checkpoint(ckpt_path, payload(trainer))
     _atomic_write_text(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2))
 

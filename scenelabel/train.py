@@ -15,7 +15,7 @@ import torch
 from tqdm import tqdm
 
 from .config import BuildConfig
-from .errors import TrainingError
+from .errors import TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
 from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy
@@ -187,8 +187,32 @@ class Trainer:
             "samples_per_ray": out.n_evaluated / tc.batch_rays,
         }
 
+    def state_dict(self) -> dict:
+        """Everything needed to continue training exactly where it stopped."""
+        return {
+            "model": self.model.state_dict(),
+            "occupancy": self.grid.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.state.step,
+            "elapsed": self.state.elapsed,
+            "history": self.state.history,
+            "generator": self.generator.get_state(),
+        }
+
+    def load_state_dict(self, data: dict) -> None:
+        """Continue from :meth:`state_dict` output (e.g. a checkpoint)."""
+        self.model.load_state_dict(data["model"])
+        self.grid.load_state_dict(data["occupancy"])
+        self.optimizer.load_state_dict(data["optimizer"])
+        self.state = TrainState(step=int(data["step"]), elapsed=float(data["elapsed"]), history=list(data.get("history", [])))
+        if "generator" in data:
+            self.generator.set_state(data["generator"])
+
     def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
-        """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps."""
+        """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
+
+        On Ctrl-C it calls ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
+        """
         tc = self.config.train
         start = time.perf_counter() - self.state.elapsed
         self.model.train()
@@ -207,6 +231,10 @@ class Trainer:
                 if tc.time_budget is not None and self.state.elapsed >= tc.time_budget:
                     bar.write(f"time budget of {tc.time_budget:g} s reached after {self.state.step} steps")
                     break
+        except KeyboardInterrupt:
+            if on_checkpoint is not None:
+                on_checkpoint(self)
+            raise TrainingInterrupted(f"interrupted at step {self.state.step}") from None
         finally:
             bar.close()
             self.model.eval()
