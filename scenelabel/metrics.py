@@ -1,6 +1,8 @@
 """Evaluation metrics: PSNR, SSIM, confusion matrix / mIoU, depth error (numpy in, numbers out).
 
-Pixels labelled ``ignore_index`` never count; neither do pixels whose true class has no channel.
+Pixels labelled ``ignore_index`` never count; neither do pixels whose true class is not in the
+evaluated ``class_ids``. Predictions outside ``class_ids`` (FREE, UNKNOWN, other ids) are always
+wrong: they count as misses of the true class (a last "other" column of the confusion matrix).
 """
 
 from __future__ import annotations
@@ -8,10 +10,19 @@ from __future__ import annotations
 import numpy as np
 from skimage.metrics import structural_similarity
 
-__all__ = ["psnr", "ssim", "confusion_matrix", "miou", "depth_error"]
+from .errors import InputError
+
+__all__ = ["confusion_matrix", "depth_error", "miou", "psnr", "ssim"]
 
 SSIM_WINDOW = 7
 """skimage's default SSIM window; smaller images use the largest odd window that fits."""
+SSIM_MIN_WINDOW = 3
+"""skimage cannot compute SSIM with a window below 3 px: smaller images are an error."""
+
+
+def _same_shape(pred: np.ndarray, target: np.ndarray, what: str) -> None:
+    if pred.shape != target.shape:
+        raise InputError(f"{what}: prediction {pred.shape} and target {target.shape} differ", field="pred")
 
 
 def psnr(pred: np.ndarray, target: np.ndarray, max_value: float = 1.0) -> float:
@@ -19,19 +30,34 @@ def psnr(pred: np.ndarray, target: np.ndarray, max_value: float = 1.0) -> float:
 
     Args:
         pred, target: [H, W, 3] (any matching shape) in [0, max_value].
+    Returns:
+        PSNR in dB; ``inf`` when the images are identical (MSE 0).
     """
-    mse = float(np.mean((np.asarray(pred, np.float64) - np.asarray(target, np.float64)) ** 2))
+    pred, target = np.asarray(pred, np.float64), np.asarray(target, np.float64)
+    _same_shape(pred, target, "psnr")
+    mse = float(np.mean((pred - target) ** 2))
     return float("inf") if mse == 0 else float(10.0 * np.log10(max_value**2 / mse))
 
 
-def ssim(pred: np.ndarray, target: np.ndarray) -> float:
-    """Structural similarity (skimage, Gaussian-free 7x7 window) of [H, W, 3] images in [0, 1]."""
+def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float:
+    """Structural similarity (skimage, uniform 7x7 window) of images in [0, data_range].
+
+    Args:
+        pred, target: [H, W, 3] colour (channel axis last) or [H, W] grey images.
+    Images smaller than 7 px use the largest odd window that fits (at least 3 px; smaller
+    images raise InputError).
+    """
+    pred, target = np.asarray(pred, np.float64), np.asarray(target, np.float64)
+    _same_shape(pred, target, "ssim")
+    if pred.ndim not in (2, 3):
+        raise InputError(f"ssim needs [H, W] or [H, W, C] images, got {pred.shape}", field="pred")
     win = min(SSIM_WINDOW, *pred.shape[:2])
     win = win if win % 2 == 1 else win - 1
+    if win < SSIM_MIN_WINDOW:
+        raise InputError(f"ssim needs images of at least {SSIM_MIN_WINDOW}x{SSIM_MIN_WINDOW} px, got {pred.shape[:2]}", field="pred")
+    channel_axis = -1 if pred.ndim == 3 else None
     return float(
-        structural_similarity(
-            np.asarray(pred, np.float64), np.asarray(target, np.float64), channel_axis=-1, data_range=1.0, win_size=win
-        )
+        structural_similarity(pred, target, channel_axis=channel_axis, data_range=data_range, win_size=win)
     )
 
 
@@ -50,8 +76,10 @@ def confusion_matrix(
     class_ids = np.asarray(class_ids, np.int64)
     pred = np.asarray(pred_ids, np.int64).ravel()
     target = np.asarray(target_ids, np.int64).ravel()
-    if pred.shape != target.shape:
-        raise ValueError(f"prediction {np.shape(pred_ids)} and target {np.shape(target_ids)} differ")
+    if np.shape(pred_ids) != np.shape(target_ids):
+        raise InputError(f"prediction {np.shape(pred_ids)} and target {np.shape(target_ids)} differ", field="pred_ids")
+    if class_ids.ndim != 1 or len(class_ids) == 0 or np.any(np.diff(class_ids) <= 0):
+        raise InputError(f"class_ids must be non-empty, unique and ascending, got {class_ids.tolist()}", field="class_ids")
     C = len(class_ids)
     t_pos = np.searchsorted(class_ids, target).clip(0, C - 1)
     valid = class_ids[t_pos] == target
@@ -59,9 +87,8 @@ def confusion_matrix(
         valid &= target != ignore_index
     p_pos = np.searchsorted(class_ids, pred).clip(0, C - 1)
     cols = np.where(class_ids[p_pos] == pred, p_pos, C)
-    conf = np.zeros((C, C + 1), dtype=np.int64)
-    np.add.at(conf, (t_pos[valid], cols[valid]), 1)
-    return conf
+    flat = t_pos[valid] * (C + 1) + cols[valid]
+    return np.bincount(flat, minlength=C * (C + 1)).astype(np.int64).reshape(C, C + 1)
 
 
 def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
@@ -84,11 +111,25 @@ def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
     return (float(np.nanmean(iou)) if np.any(denom > 0) else float("nan")), iou
 
 
-def depth_error(pred: np.ndarray, target: np.ndarray, valid: np.ndarray | None = None) -> dict[str, float]:
-    """Depth errors over valid pixels: abs_rel = mean |p - t| / t, rmse, mae (world units)."""
-    pred = np.asarray(pred, np.float64)
-    target = np.asarray(target, np.float64)
-    valid = (target > 0) if valid is None else (np.asarray(valid, bool) & (target > 0))
+def depth_error(
+    pred_depth: np.ndarray, target_depth: np.ndarray, valid_mask: np.ndarray | None = None
+) -> dict[str, float]:
+    """Depth errors over valid pixels: abs_rel = mean |p - t| / t, rmse, mae (world units).
+
+    Args:
+        pred_depth, target_depth: [H, W] depth along the unit ray (any matching shape).
+        valid_mask: [H, W] bool, or None for all pixels. Pixels whose target is not finite and
+            positive (0 = no surface in the synthetic scenes) never count. A non-finite
+            prediction at a valid pixel is not skipped: it makes the errors non-finite.
+    Returns:
+        {"abs_rel", "rmse", "mae"}: NaN each when no pixel is valid.
+    """
+    pred = np.asarray(pred_depth, np.float64)
+    target = np.asarray(target_depth, np.float64)
+    _same_shape(pred, target, "depth_error")
+    valid = np.isfinite(target) & (target > 0)
+    if valid_mask is not None:
+        valid &= np.asarray(valid_mask, bool)
     if not valid.any():
         return {"abs_rel": float("nan"), "rmse": float("nan"), "mae": float("nan")}
     diff = pred[valid] - target[valid]

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from PIL import Image
@@ -36,26 +37,26 @@ from .rays import camera_directions_from_pixels
 __all__ = [
     "BACKGROUND_ID",
     "HOLDOUT_EVERY",
-    "Box",
-    "ClassInfo",
-    "SyntheticScene",
-    "RayHits",
-    "TOY_BOXES",
-    "TOY_CLASSES",
     "ROOM_BOXES",
     "ROOM_CLASSES",
-    "toy_scene_geometry",
-    "furnished_room_geometry",
+    "TOY_BOXES",
+    "TOY_CLASSES",
+    "Box",
+    "ClassInfo",
+    "RayHits",
+    "SyntheticScene",
     "cast_rays",
-    "shade_hits",
+    "furnished_room_geometry",
     "look_at",
     "pixel_rays",
     "render_view",
-    "toy_cameras",
     "room_cameras",
+    "shade_hits",
+    "toy_cameras",
+    "toy_scene_geometry",
+    "write_furnished_room",
     "write_scene",
     "write_toy_scene",
-    "write_furnished_room",
 ]
 
 BACKGROUND_ID = 255  # label of rays that hit nothing (also the scenes' ignore_index)

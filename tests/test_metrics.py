@@ -3,7 +3,10 @@
 import math
 
 import numpy as np
+import pytest
+from skimage.metrics import structural_similarity
 
+from scenelabel.errors import InputError
 from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
 
 
@@ -53,3 +56,78 @@ def test_depth_error():
     assert math.isclose(err["abs_rel"], 0.05)
     assert math.isclose(err["mae"], 0.05)
     assert math.isclose(err["rmse"], math.sqrt(0.01 / 2))
+
+
+def test_psnr_known_mse_other_range():
+    a = np.zeros((4, 5, 3))
+    b = a.copy()
+    b[0, 0, 0] = 60.0  # mse = 3600 / 60
+    assert math.isclose(psnr(b, a, max_value=255.0), 10 * math.log10(255.0**2 / 60.0), rel_tol=1e-12)
+    with pytest.raises(InputError):
+        psnr(a, a[:3])
+
+
+def test_ssim_matches_skimage_grey_and_tiny_images():
+    rng = np.random.default_rng(2)
+    a, b = rng.uniform(size=(2, 12, 10, 3))
+    ref = structural_similarity(a, b, channel_axis=-1, data_range=1.0)
+    assert math.isclose(ssim(a, b), ref, rel_tol=1e-12)
+    grey = ssim(a[..., 0], b[..., 0])
+    assert math.isclose(grey, structural_similarity(a[..., 0], b[..., 0], data_range=1.0), rel_tol=1e-12)
+    assert np.isfinite(ssim(a[:4, :6], b[:4, :6]))  # window 3
+    with pytest.raises(InputError):
+        ssim(a[:2, :2], b[:2, :2])
+
+
+def test_confusion_hand_values_and_ignore():
+    target = np.array([[1, 1, 7], [7, 255, 255]])
+    pred = np.array([[1, 7, 7], [-1, 1, 255]])  # predictions at ignored pixels never count
+    conf = confusion_matrix(pred, target, np.array([1, 7]), ignore_index=255)
+    np.testing.assert_array_equal(conf, [[1, 1, 0], [0, 1, 1]])
+    assert conf.sum() == 4
+    with pytest.raises(InputError):
+        confusion_matrix(pred, target[:1], np.array([1, 7]), 255)
+    with pytest.raises(InputError):
+        confusion_matrix(pred, target, np.array([7, 1]), 255)
+
+
+def test_miou_matches_naive_loop():
+    rng = np.random.default_rng(3)
+    ids = [2, 4, 9, 11]
+    target = rng.choice(ids + [255], size=(30, 40))
+    pred = rng.choice(ids + [-1], size=(30, 40))
+    mean, per = miou(confusion_matrix(pred, target, np.array(ids), 255))
+    expected = []
+    for c in ids:
+        valid = target != 255
+        inter = np.sum((pred == c) & (target == c) & valid)
+        union = np.sum(((pred == c) | (target == c)) & valid)
+        expected.append(inter / union)
+    np.testing.assert_allclose(per, expected, rtol=1e-12)
+    assert math.isclose(mean, float(np.mean(expected)), rel_tol=1e-12)
+
+
+def test_miou_nothing_present_is_nan():
+    mean, per = miou(np.zeros((3, 4), np.int64))
+    assert math.isnan(mean) and np.all(np.isnan(per))
+
+
+def test_depth_error_mask_and_naive_loop():
+    rng = np.random.default_rng(4)
+    target = rng.uniform(0.5, 4.0, (6, 7))
+    target[0, :3] = 0.0  # no surface
+    target[1, 0] = np.inf
+    pred = target + rng.normal(0, 0.1, target.shape)
+    mask = rng.uniform(size=target.shape) > 0.3
+    err = depth_error(pred, target, mask)
+    diffs, rels = [], []
+    for i in range(6):
+        for j in range(7):
+            if mask[i, j] and np.isfinite(target[i, j]) and target[i, j] > 0:
+                diffs.append(pred[i, j] - target[i, j])
+                rels.append(abs(diffs[-1]) / target[i, j])
+    assert math.isclose(err["mae"], float(np.mean(np.abs(diffs))), rel_tol=1e-12)
+    assert math.isclose(err["rmse"], float(np.sqrt(np.mean(np.square(diffs)))), rel_tol=1e-12)
+    assert math.isclose(err["abs_rel"], float(np.mean(rels)), rel_tol=1e-12)
+    none = depth_error(pred, target, np.zeros_like(mask))
+    assert all(math.isnan(v) for v in none.values())

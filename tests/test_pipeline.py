@@ -1,6 +1,5 @@
 """Build orchestration helpers: view split, default voxel size."""
 
-import numpy as np
 import pytest
 
 from scenelabel.errors import InputError

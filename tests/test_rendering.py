@@ -6,6 +6,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from scenelabel.rendering import (
     class_probs_from_weights,
@@ -161,3 +164,30 @@ def test_extremes_match_float64_reference():
     got = torch_render(d, torch.float32)
     for r, g in zip(ref, got):
         np.testing.assert_allclose(g.double().numpy(), r, atol=1e-5)
+
+
+# ---------------------------------------------------------------- property-based
+
+finite_sigma = st.one_of(st.just(0.0), st.floats(1e-30, 1e30), st.just(float("inf")))
+finite_delta = st.one_of(st.just(0.0), st.floats(1e-12, 1e10))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    sigmas=arrays(np.float64, st.tuples(st.integers(1, 4), st.integers(1, 6)), elements=finite_sigma),
+    data=st.data(),
+)
+def test_property_weights_are_a_sub_probability(sigmas, data):
+    deltas = data.draw(arrays(np.float64, sigmas.shape, elements=finite_delta))
+    logits = data.draw(arrays(np.float64, sigmas.shape + (3,), elements=st.floats(-50, 50)))
+    s = torch.tensor(sigmas, dtype=torch.float32, requires_grad=True)
+    w, trans, alphas = weights_from_density(s, torch.tensor(deltas, dtype=torch.float32))
+    probs = class_probs_from_weights(w, torch.tensor(logits, dtype=torch.float32))
+    assert torch.all(torch.isfinite(w)) and torch.all(w >= 0)
+    assert torch.all(w.sum(-1) <= 1 + 1e-5)
+    assert torch.all(trans[..., 1:] <= trans[..., :-1] + 1e-7)  # transmittance never grows
+    np.testing.assert_allclose(probs.detach().sum(-1).numpy(), 1.0, atol=1e-5)
+    (w.sum() + probs.sum()).backward()
+    assert torch.all(torch.isfinite(s.grad))
+    ref_w = naive_render(sigmas, deltas, np.zeros(sigmas.shape + (3,)), logits, np.ones_like(sigmas), np.zeros(len(sigmas)), np.full(len(sigmas), 2.0))[0]
+    np.testing.assert_allclose(w.detach().numpy(), ref_w, atol=1e-5)

@@ -119,3 +119,43 @@ def test_incompatible_checkpoint_version(tmp_path):
         SemanticField.load(path)
     with pytest.raises(CheckpointError, match="no checkpoint"):
         SemanticField.load(tmp_path / "missing")
+
+
+def test_geometry_edge_cases(field):
+    lo, hi = field.aabb
+    # a ray starting inside the bounds (and inside the floor slab) answers finitely
+    inside = field.query_rays([[0.0, 0.0, -0.01]], [[0.0, 0.0, 1.0]])
+    assert np.all(np.isfinite(inside.depth)) and inside.depth[0] >= 0
+    # a camera exactly at the bounds' corner, looking at the centre
+    corner = hi.copy()
+    r = field.query_rays([corner], [0.5 * (lo + hi) - corner])
+    assert r.label[0] != UNKNOWN and np.isfinite(r.depth[0])
+    # a ray pointing away from the bounds: UNKNOWN, finite depth
+    away = field.query_rays([hi + 1.0], [[1.0, 1.0, 1.0]])
+    assert away.label[0] == UNKNOWN and np.isfinite(away.depth[0])
+
+
+def test_memory_does_not_grow_over_many_queries(field):
+    import tracemalloc
+
+    pts = np.random.default_rng(2).uniform(field.aabb[0], field.aabb[1], (64, 3))
+    for _ in range(200):  # warm up caches and allocators
+        field.query_points(pts)
+    rss_before = resident_bytes()
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    for _ in range(10_000):
+        field.query_points(pts)
+    after = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    grown = sum(stat.size_diff for stat in after.compare_to(before, "filename"))
+    assert grown < 1_000_000, grown  # Python-side growth under 1 MB after 10,000 calls
+    assert resident_bytes() - rss_before < 50_000_000  # and the process (torch included) under 50 MB
+
+
+def resident_bytes() -> int:
+    """The process's resident set size from /proc (Linux)."""
+    import os
+
+    with open(f"/proc/{os.getpid()}/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
