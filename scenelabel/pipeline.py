@@ -246,7 +246,7 @@ def build(
             f"{err}; checkpoint saved to {ckpt_path}; continue with: scenelabel build {scene.root} --out {out_dir} --resume"
         ) from None
     except TrainingError as err:
-        kept = f"; the last good checkpoint is kept at {ckpt_path}" if ckpt_path.exists() else ""
+        kept = f"; the last checkpoint before the failure is kept at {ckpt_path}" if ckpt_path.exists() else ""
         raise TrainingError(f"{err}{kept}") from None
     save_checkpoint(ckpt_path, payload(trainer))
     _atomic_write_text(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2))

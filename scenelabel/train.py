@@ -26,6 +26,13 @@ from .scene import ClassMap, Scene
 
 __all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
 
+DIVERGENCE_CHECK_STEP = 100
+"""From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
+as the mean training colour (the colour variance) has diverged and is stopped."""
+
+MSE_EMA = 0.1
+"""Weight of the newest step in the smoothed MSE used by the divergence check."""
+
 GRID_ALL_CELLS_UPDATES = 4
 """The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
 a random quarter (each full refresh of a 64³ grid costs as much as several training steps)."""
@@ -127,6 +134,17 @@ class Trainer:
         self.background = None if tc.background is None else torch.tensor(tc.background, device=device)
         self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
         self.state = TrainState()
+        pool_rgb = self.rays.rgb[self.ray_pool]
+        self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
+        self.mse_ema: float | None = None
+
+    def _check_divergence(self, mse: float) -> None:
+        self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
+        if self.state.step >= DIVERGENCE_CHECK_STEP and self.mse_ema > self.mean_colour_mse:
+            raise TrainingError(
+                f"training diverged at step {self.state.step}: the photometric error ({self.mse_ema:.4g}) is worse "
+                f"than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
+            )
 
     def progress(self) -> float:
         """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
@@ -171,9 +189,10 @@ class Trainer:
         loss = mse + tc.semantic_weight * ce
         if not torch.isfinite(loss):
             raise TrainingError(
-                f"the loss became non-finite at step {step} (mse={float(mse)}, ce={float(ce)}); "
+                f"the loss became non-finite at step {step} (mse={float(mse.detach())}, ce={float(ce.detach())}); "
                 "the learning rate is probably too high for this scene"
             )
+        self._check_divergence(float(mse.detach()))
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
