@@ -140,11 +140,10 @@ class OccupancyGrid(nn.Module):
         points = self.cell_points(cells, generator)
         sigmas = torch.cat([density_fn(points[i : i + chunk]) for i in range(0, len(points), chunk)]).float()
         density = self.density.flatten()
-        old = torch.where(torch.isinf(density), torch.zeros_like(density), density)
+        density = torch.where(torch.isinf(density), torch.zeros_like(density), density)  # inf: never refreshed
         cells = cells.to(density.device)
-        new = torch.where(torch.isinf(density), torch.zeros_like(density), density)
-        new[cells] = torch.maximum(old[cells] * decay, sigmas)
-        self.density = new.reshape(self.density.shape)
+        density[cells] = torch.maximum(density[cells] * decay, sigmas.to(density.device))
+        self.density = density.reshape(self.density.shape)
         self.bits = self.density > self.sigma_threshold
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
