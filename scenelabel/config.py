@@ -24,6 +24,11 @@ __all__ = [
 ]
 
 
+def _check_choice(name: str, value, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise ConfigError(f"unknown {name} {value!r}; choose one of {list(allowed)}")
+
+
 @dataclass
 class FieldConfig:
     """The network: encoding + heads (see scenelabel.fields)."""
@@ -35,6 +40,15 @@ class FieldConfig:
     hidden: int = 64  # width of the heads' hidden layers
     view_dependent: bool = True  # colour depends on view direction (SH degree 2)
     density_bias: float = -1.0  # σ = exp(raw + density_bias) (trunc_exp): low initial density
+    class_head: str = "linear"  # linear: scalar σ + class head (eq. 6) | density: per-class σ_j (eq. 5)
+    density_combine: str = "sum"  # with class_head=density: σ = sum_j σ_j or max_j σ_j (eq. 4)
+    semantic_rendering: str = "probs"  # probs: composite softmax per sample (eq. 7) | scores: softmax after (eq. 3)
+
+    def __post_init__(self) -> None:
+        _check_choice("field.encoding", self.encoding, ("triplane", "dense"))
+        _check_choice("field.class_head", self.class_head, ("linear", "density"))
+        _check_choice("field.density_combine", self.density_combine, ("sum", "max"))
+        _check_choice("field.semantic_rendering", self.semantic_rendering, ("probs", "scores"))
 
 
 @dataclass
@@ -60,12 +74,20 @@ class TrainConfig:
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
+    semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
+    focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
+    detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
     time_budget: float | None = None  # seconds; training stops early when spent
     seed: int = 0
     holdout: int = 8  # every holdout-th view is held out for evaluation; 0 = train on all
     background: tuple[float, float, float] | None = (1.0, 1.0, 1.0)  # colour behind the scene; None = black
     checkpoint_every: int = 500  # steps between checkpoints
     log_every: int = 25  # steps between progress-bar updates
+
+    def __post_init__(self) -> None:
+        _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
+        if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
+            raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
 
 
 @dataclass

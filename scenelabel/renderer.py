@@ -10,7 +10,13 @@ from dataclasses import dataclass
 
 import torch
 
-from .rendering import class_log_probs_from_weights, composite_rgb, depth_from_weights, weights_from_density
+from .rendering import (
+    class_log_probs_from_scores,
+    class_log_probs_from_weights,
+    composite_rgb,
+    depth_from_weights,
+    weights_from_density,
+)
 from .sampling import march_uniform, ray_aabb_intersect
 
 __all__ = ["RayBundleOutput", "ray_intervals", "render_rays"]
@@ -64,6 +70,8 @@ def render_rays(
     jitter: torch.Tensor | None = None,
     background: torch.Tensor | None = None,
     with_rgb: bool = True,
+    *,
+    detach_semantic_weights: bool = False,
 ) -> RayBundleOutput:
     """March rays from t_min to t_max in steps of ``step`` and composite the field's outputs.
 
@@ -76,6 +84,10 @@ def render_rays(
         jitter: [n_rays] in [0, 1) (training) or None.
         background: [3] colour behind the scene, or None for black.
         with_rgb: evaluate colour (False: density and classes only, cheaper).
+        detach_semantic_weights: composite classes with detached weights, so a loss on the class
+            probabilities does not move σ (only the class scores).
+    The class composite follows ``field.config.semantic_rendering``: "probs" (eq. 7) or
+    "scores" (softmax after compositing).
     Returns:
         RayBundleOutput.
     """
@@ -103,6 +115,9 @@ def render_rays(
     sigmas = zeros.index_put(at, s)
     class_logits = points.new_zeros(t_min.shape[0], K, field.num_classes).index_put(at, l)
     weights, _, _ = weights_from_density(sigmas, t_ends - t_starts)
+    composite_classes = (
+        class_log_probs_from_scores if field.config.semantic_rendering == "scores" else class_log_probs_from_weights
+    )
     rgb = composite_rgb(weights, rgbs, background) if with_rgb else None
     # A ray whose interval is empty (t_max < t_min: it misses the box or [near, far]) reports its
     # t_max (≥ 0): the requested far, or where it leaves the box.
@@ -112,6 +127,6 @@ def render_rays(
         rgb=rgb,
         depth=depth,
         opacity=weights.sum(-1),
-        class_log_probs=class_log_probs_from_weights(weights, class_logits),
+        class_log_probs=composite_classes(weights.detach() if detach_semantic_weights else weights, class_logits),
         n_evaluated=int(kept_points.shape[0]),
     )

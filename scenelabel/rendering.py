@@ -8,6 +8,7 @@ Samples along a ray i are intervals [t_starts, t_ends) with density σ_i. With �
     w_i = T_i α_i                          weight of interval i
     C   = Σ w_i c_i                        composite colour                     (eq. 2)
     P   = Σ w_i softmax(l_i) / Σ w_i       class probabilities                  (eq. 7)
+    P'  = softmax(Σ w_i l_i)               scores composited, softmax after     ("eq. 3" variant)
 
 Transmittance is computed in log space (an exclusive cumulative sum of τ, then one exp) so it
 neither underflows step by step nor loses precision for tiny τ; α uses ``-expm1(-τ)``, exact for
@@ -39,6 +40,7 @@ __all__ = [
     "depth_from_weights",
     "class_probs_from_weights",
     "class_log_probs_from_weights",
+    "class_log_probs_from_scores",
 ]
 
 SIGMA_MAX = 1e30
@@ -205,3 +207,20 @@ def class_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) 
         [n_rays, C]; uniform for rays with opacity below OPACITY_EPS.
     """
     return torch.exp(class_log_probs_from_weights(weights, class_logits))
+
+
+def class_log_probs_from_scores(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
+    """log softmax(Σ_i w_i l_i): class scores composited like colour, softmax after.
+
+    The seed paper's eq. 3 alternative to eq. 7 (no per-sample class probabilities), as
+    Semantic-NeRF renders logits. The scores l_i are the class head's logits (eq. 6 field) or the
+    per-class log-densities (eq. 5 field). A ray without weight composites to 0 scores: uniform.
+
+    Args:
+        weights: [n_rays, n_samples].
+        class_logits: [n_rays, n_samples, C].
+    Returns:
+        [n_rays, C] log-probabilities (each row's exp sums to 1).
+    """
+    dtype = torch.promote_types(weights.dtype, torch.float32)
+    return torch.log_softmax(composite(weights.to(dtype), class_logits.to(dtype)), dim=-1)

@@ -18,7 +18,7 @@ from .config import BuildConfig
 from .errors import TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
-from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy
+from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
 from .rays import rays_from_cameras
 from .renderer import ray_intervals, render_rays
 from .sampling import OccupancyGrid
@@ -146,6 +146,12 @@ class Trainer:
                 f"than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
             )
 
+    def _semantic_loss(self, class_log_probs: torch.Tensor, channels: torch.Tensor) -> torch.Tensor:
+        tc = self.config.train
+        if tc.semantic_loss == "focal":
+            return semantic_focal_loss(class_log_probs, channels, tc.focal_gamma, self.class_weights)
+        return semantic_cross_entropy(class_log_probs, channels, self.class_weights)
+
     def progress(self) -> float:
         """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
         tc = self.config.train
@@ -183,9 +189,10 @@ class Trainer:
             self.n_samples,
             jitter,
             self.background,
+            detach_semantic_weights=tc.detach_semantic_weights,
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
-        ce = semantic_cross_entropy(out.class_log_probs, r.channels[idx], self.class_weights)
+        ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         loss = mse + tc.semantic_weight * ce
         if not torch.isfinite(loss):
             raise TrainingError(

@@ -26,3 +26,19 @@ def test_unknown_keys_and_presets_are_errors():
         config_from_dict({"trainer": {}})
     with pytest.raises(ConfigError, match="unknown preset"):
         preset("huge")
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {"field": {"class_head": "sigma"}},
+        {"field": {"density_combine": "mean"}},
+        {"field": {"semantic_rendering": "eq9"}},
+        {"field": {"encoding": "hash"}},
+        {"train": {"semantic_loss": "dice"}},
+        {"train": {"focal_gamma": -1}},
+    ],
+)
+def test_unknown_choices_are_errors(overrides):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma"):
+        preset("fast", overrides)

@@ -4,7 +4,9 @@ import math
 
 import torch
 
-from scenelabel.losses import class_balance_weights, photometric_mse, semantic_cross_entropy
+import pytest
+
+from scenelabel.losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
 
 
 def test_cross_entropy_matches_hand_value_and_skips_ignored():
@@ -38,3 +40,35 @@ def test_weighted_cross_entropy_equals_plain_with_unit_weights():
     torch.testing.assert_close(
         semantic_cross_entropy(log_probs, target, torch.ones(3)), semantic_cross_entropy(log_probs, target)
     )
+
+
+def test_focal_with_gamma_zero_equals_cross_entropy():
+    torch.manual_seed(0)
+    log_p = torch.log_softmax(torch.randn(50, 6, dtype=torch.float64), -1)
+    targets = torch.randint(-1, 6, (50,))
+    weights = torch.rand(6, dtype=torch.float64)
+    for w in (None, weights):
+        torch.testing.assert_close(semantic_focal_loss(log_p, targets, 0.0, w), semantic_cross_entropy(log_p, targets, w))
+
+
+def test_focal_hand_value_and_down_weighting():
+    # P_t = 0.9 and 0.2, γ = 2: mean of -(0.1)^2 log 0.9 and -(0.8)^2 log 0.2
+    log_p = torch.log(torch.tensor([[0.9, 0.1], [0.8, 0.2]], dtype=torch.float64))
+    targets = torch.tensor([0, 1])
+    expected = (-(0.1**2) * math.log(0.9) - (0.8**2) * math.log(0.2)) / 2
+    assert float(semantic_focal_loss(log_p, targets, 2.0)) == pytest.approx(expected, rel=1e-12)
+    # confident pixels count less under focal than under CE
+    confident = torch.log(torch.tensor([[0.99, 0.01]], dtype=torch.float64))
+    assert float(semantic_focal_loss(confident, torch.tensor([0]), 2.0)) < 1e-3 * float(
+        semantic_cross_entropy(confident, torch.tensor([0]))
+    )
+
+
+def test_focal_finite_at_extremes():
+    log_p = torch.tensor([[0.0, -1e30], [-1e30, 0.0], [-800.0, -1e-300]], dtype=torch.float64, requires_grad=True)
+    loss = semantic_focal_loss(log_p, torch.tensor([0, 0, 1]), 2.0)
+    loss.backward()
+    assert torch.isfinite(loss) and torch.all(torch.isfinite(log_p.grad))
+    assert float(semantic_focal_loss(log_p.detach()[:1], torch.tensor([0]), 2.0)) == 0.0  # P_t = 1: no loss
+    with pytest.raises(ValueError):
+        semantic_focal_loss(log_p, torch.tensor([0, 0, 1]), -1.0)

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from scenelabel.rendering import (
+    class_log_probs_from_scores,
     class_probs_from_weights,
     composite_rgb,
     depth_from_weights,
@@ -191,3 +192,25 @@ def test_property_weights_are_a_sub_probability(sigmas, data):
     assert torch.all(torch.isfinite(s.grad))
     ref_w = naive_render(sigmas, deltas, np.zeros(sigmas.shape + (3,)), logits, np.ones_like(sigmas), np.zeros(len(sigmas)), np.full(len(sigmas), 2.0))[0]
     np.testing.assert_allclose(w.detach().numpy(), ref_w, atol=1e-5)
+
+
+def test_scores_variant_matches_naive_loop():
+    """softmax(Σ w_i l_i) (eq. 3 variant) against a float64 loop; rows sum to 1; no weight: uniform."""
+    rng = np.random.default_rng(3)
+    d = random_rays(rng)
+    w_ref = naive_render(**d)[0]
+    for r in range(len(w_ref)):
+        scores = [sum(w_ref[r, s] * d["logits"][r, s, c] for s in range(w_ref.shape[1])) for c in range(d["logits"].shape[-1])]
+        top = max(scores)
+        ref = [math.exp(x - top) for x in scores]
+        ref = [x / sum(ref) for x in ref]
+        got = class_log_probs_from_scores(torch.tensor(w_ref[r : r + 1]), torch.tensor(d["logits"][r : r + 1])).exp()
+        np.testing.assert_allclose(got[0].numpy(), ref, rtol=1e-12, atol=1e-12)
+    empty = class_log_probs_from_scores(torch.zeros(2, 4), torch.randn(2, 4, 3)).exp()
+    np.testing.assert_allclose(empty.numpy(), 1.0 / 3)
+    # extremes: huge logits and weights stay finite with finite gradients
+    w = torch.tensor([[1.0, 0.0], [0.5, 0.5]], requires_grad=True)
+    logits = torch.tensor([[[1e30, -1e30], [0.0, 0.0]], [[3e38, 0.0], [-3e38, 0.0]]], requires_grad=True)
+    out = class_log_probs_from_scores(w, logits)
+    out.exp().sum().backward()
+    assert torch.all(torch.isfinite(out.exp())) and torch.all(torch.isfinite(w.grad))

@@ -14,7 +14,7 @@ from ..config import FieldConfig
 from ..errors import ConfigError
 from .encodings import DenseGrid, TriPlane, sh_directions
 
-__all__ = ["SemanticField3D", "build_encoding", "trunc_exp"]
+__all__ = ["SemanticField3D", "build_encoding", "trunc_exp", "combine_class_densities"]
 
 SH_DIM = 9
 TRUNC_EXP_MAX = 15.0
@@ -48,10 +48,27 @@ def build_encoding(config: FieldConfig) -> nn.Module:
     raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane' or 'dense'")
 
 
-class SemanticField3D(nn.Module):
-    """σ (scalar density) with a class head beside it (the seed paper's eq. 6 variant).
+def combine_class_densities(class_sigmas: torch.Tensor, how: str) -> torch.Tensor:
+    """The colour/geometry density σ from per-class densities σ_j (seed paper eq. 4: σ = f(σ_j)).
 
-    trunk: features -> hidden -> (σ_raw, h); colour: (h, SH(d)) -> hidden -> rgb; class: h -> logits.
+    Args:
+        class_sigmas: [n, C] non-negative.
+        how: "sum" (σ = Σ_j σ_j) or "max" (σ = max_j σ_j).
+    Returns:
+        [n].
+    """
+    return class_sigmas.sum(-1) if how == "sum" else class_sigmas.amax(-1)
+
+
+class SemanticField3D(nn.Module):
+    """σ, colour and class scores at points (the seed paper's eq. 5 and eq. 6 variants).
+
+    - ``class_head="linear"`` (eq. 6): trunk: features -> hidden -> (σ_raw, h); class: h -> logits.
+    - ``class_head="density"`` (eq. 5): the trunk predicts one density per class,
+      σ_j = trunc_exp(s_j + density_bias); σ = Σ_j σ_j or max_j σ_j (eq. 4), and the class
+      scores are s_j, so softmax(s)_j = σ_j / Σ_k σ_k: each class's share of the density.
+
+    Colour: (h, SH(d)) -> hidden -> rgb in both.
     """
 
     def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor):
@@ -61,10 +78,13 @@ class SemanticField3D(nn.Module):
         self.register_buffer("aabb", aabb.clone().float())
         self.encoding = build_encoding(config)
         h = config.hidden
-        self.trunk = nn.Sequential(nn.Linear(self.encoding.out_dim, h), nn.ReLU(), nn.Linear(h, h + 1))
+        self._n_density = num_classes if config.class_head == "density" else 1
+        self.trunk = nn.Sequential(
+            nn.Linear(self.encoding.out_dim, h), nn.ReLU(), nn.Linear(h, h + self._n_density)
+        )
         rgb_in = h + (SH_DIM if config.view_dependent else 0)
         self.rgb_head = nn.Sequential(nn.Linear(rgb_in, h), nn.ReLU(), nn.Linear(h, 3))
-        self.class_head = nn.Linear(h, num_classes)
+        self.class_head = nn.Linear(h, num_classes) if config.class_head == "linear" else None
 
     def encoding_parameters(self) -> list[nn.Parameter]:
         return list(self.encoding.parameters())
@@ -76,10 +96,17 @@ class SemanticField3D(nn.Module):
     def _unit(self, points: torch.Tensor) -> torch.Tensor:
         return (points - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2.0 - 1.0
 
-    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """points [n, 3] -> σ [n], features h [n, hidden], per-class raw densities s [n, C] or None."""
         out = self.trunk(self.encoding(self._unit(points)))
-        sigmas = trunc_exp(out[:, 0] + self.config.density_bias)
-        return sigmas, F.relu(out[:, 1:])
+        raw, h = out[:, : self._n_density], F.relu(out[:, self._n_density :])
+        if self.class_head is not None:
+            return trunc_exp(raw[:, 0] + self.config.density_bias), h, None
+        class_sigmas = trunc_exp(raw + self.config.density_bias)  # [n, C]
+        return combine_class_densities(class_sigmas, self.config.density_combine), h, raw
+
+    def _class_logits(self, h: torch.Tensor, raw: torch.Tensor | None) -> torch.Tensor:
+        return self.class_head(h) if self.class_head is not None else raw
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """points [n, 3] -> σ [n] (no colour or class work)."""
@@ -87,12 +114,12 @@ class SemanticField3D(nn.Module):
 
     def semantics(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """points [n, 3] -> σ [n], class_logits [n, C] (no colour work)."""
-        sigmas, h = self._trunk(points)
-        return sigmas, self.class_head(h)
+        sigmas, h, raw = self._trunk(points)
+        return sigmas, self._class_logits(h, raw)
 
     def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
-        sigmas, h = self._trunk(points)
+        sigmas, h, raw = self._trunk(points)
         rgb_in = torch.cat([h, sh_directions(directions)], -1) if self.config.view_dependent else h
         rgbs = torch.sigmoid(self.rgb_head(rgb_in))
-        return sigmas, rgbs, self.class_head(h)
+        return sigmas, rgbs, self._class_logits(h, raw)

@@ -1,0 +1,82 @@
+"""The field's semantic variants (eq. 5 per-class densities vs eq. 6 class head, sum vs max)."""
+
+import numpy as np
+import pytest
+import torch
+
+from scenelabel import SemanticField, build, preset, write_toy_scene
+from scenelabel.config import FieldConfig
+from scenelabel.fields.model import SemanticField3D, combine_class_densities
+
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+VARIANTS = [
+    {},  # eq. 6, eq. 7 rendering, cross-entropy (the default)
+    {"field": {"class_head": "density", "density_combine": "sum"}},
+    {"field": {"class_head": "density", "density_combine": "max"}},
+    {"field": {"semantic_rendering": "scores"}},
+    {"field": {"class_head": "density", "semantic_rendering": "scores"}},
+    {"train": {"semantic_loss": "focal", "focal_gamma": 2.0}},
+    {"train": {"detach_semantic_weights": True}},
+]
+
+
+def _ids(v):
+    return "-".join(f"{k}={val}" for stage in v.values() for k, val in stage.items()) or "default"
+
+
+@pytest.mark.parametrize("head", ["linear", "density"])
+@pytest.mark.parametrize("n_classes", [1, 2, 255])
+def test_heads_give_probabilities_that_sum_to_one(head, n_classes):
+    torch.manual_seed(0)
+    model = SemanticField3D(FieldConfig(resolutions=(8,), hidden=16, class_head=head), n_classes, AABB)
+    pts = torch.rand(100, 3) * 2 - 1
+    sigmas, rgbs, logits = model(pts, torch.nn.functional.normalize(torch.randn(100, 3), dim=-1))
+    assert sigmas.shape == (100,) and rgbs.shape == (100, 3) and logits.shape == (100, n_classes)
+    probs = torch.softmax(logits.double(), -1)
+    torch.testing.assert_close(probs.sum(-1), torch.ones(100, dtype=torch.float64))
+    assert torch.all(sigmas >= 0) and torch.all(torch.isfinite(sigmas))
+
+
+def test_density_head_probabilities_are_density_shares():
+    """eq. 5 with f = sum: softmax(s)_j = σ_j / Σ σ_k and σ = Σ σ_j."""
+    torch.manual_seed(1)
+    config = FieldConfig(resolutions=(8,), hidden=16, class_head="density", density_combine="sum")
+    model = SemanticField3D(config, 4, AABB)
+    pts = torch.rand(50, 3) * 2 - 1
+    out = model.trunk(model.encoding(model._unit(pts)))
+    class_sigmas = torch.exp(out[:, :4] + config.density_bias).double()
+    sigmas, logits = model.semantics(pts)
+    torch.testing.assert_close(sigmas.double(), class_sigmas.sum(-1), rtol=1e-5, atol=0)
+    torch.testing.assert_close(torch.softmax(logits.double(), -1), class_sigmas / class_sigmas.sum(-1, keepdim=True))
+
+
+def test_combine_class_densities_sum_and_max():
+    s = torch.tensor([[0.0, 1.0, 3.0], [2.0, 2.0, 0.0], [0.0, 0.0, 0.0], [1e30, 1e30, 0.0]])
+    torch.testing.assert_close(combine_class_densities(s, "sum"), torch.tensor([4.0, 4.0, 0.0, 2e30]))
+    torch.testing.assert_close(combine_class_densities(s, "max"), torch.tensor([3.0, 2.0, 0.0, 1e30]))
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    return write_toy_scene(tmp_path_factory.mktemp("variants") / "scene", n_train=14, n_test=2, width=32, height=24)
+
+
+@pytest.mark.parametrize("overrides", VARIANTS, ids=_ids)
+def test_each_variant_trains_builds_and_answers_queries(tiny_scene, tmp_path, overrides):
+    """A few steps of each variant: finite, decreasing loss; the build loads and answers queries."""
+    config = preset("quick", overrides)
+    config.train.steps = 100
+    config.train.batch_rays = 256
+    config.train.log_every = 10
+    config.output.write_map = False
+    config.output.write_renders = False
+    result = build(tiny_scene, tmp_path / "out", config, progress=False)
+    losses = [h["loss"] for h in result.metrics["history"]]
+    assert all(np.isfinite(losses))
+    assert np.mean(losses[-3:]) < 0.8 * np.mean(losses[:3]), losses
+    field = SemanticField.load(tmp_path / "out")
+    assert field.config.field == config.field and field.config.train.semantic_loss == config.train.semantic_loss
+    q = field.query_points(np.array([[0.0, 0.0, 0.1], [-0.45, -0.25, 0.3]]))
+    np.testing.assert_allclose(q.probs.sum(-1), 1.0, atol=1e-9)
+    r = field.query_rays(np.array([[0.0, 0.0, 3.0]]), np.array([[0.0, 0.0, -1.0]]))
+    assert np.isfinite(r.depth).all() and np.allclose(r.probs.sum(-1), 1.0)
