@@ -33,19 +33,29 @@ def _check_choice(name: str, value, allowed: tuple[str, ...]) -> None:
 class FieldConfig:
     """The network: encoding + heads (see scenelabel.fields)."""
 
-    encoding: str = "triplane"  # triplane | dense
+    encoding: str = "triplane"  # triplane | dense | positional (NeRF's frequency encoding)
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
     channels: int = 8  # features per plane / voxel
     grid_resolution: int = 96  # dense grid side
-    hidden: int = 64  # width of the heads' hidden layers
-    view_dependent: bool = True  # colour depends on view direction (SH degree 2)
+    pe_frequencies: int = 10  # positional encoding of points: frequencies 2^0..2^(n-1)
+    hidden: int = 64  # width of the trunk's and heads' hidden layers
+    layers: int = 2  # linear layers of the trunk (NeRF: 8)
+    skip_layer: int | None = None  # the encoded point is concatenated again before this trunk layer (NeRF: 5)
+    view_dependent: bool = True  # colour depends on view direction
+    view_encoding: str = "sh"  # sh: spherical harmonics degree 2 | positional: pe_view_frequencies
+    pe_view_frequencies: int = 4
     density_bias: float = -1.0  # σ = exp(raw + density_bias) (trunc_exp): low initial density
     class_head: str = "linear"  # linear: scalar σ + class head (eq. 6) | density: per-class σ_j (eq. 5)
     density_combine: str = "sum"  # with class_head=density: σ = sum_j σ_j or max_j σ_j (eq. 4)
     semantic_rendering: str = "probs"  # probs: composite softmax per sample (eq. 7) | scores: softmax after (eq. 3)
 
     def __post_init__(self) -> None:
-        _check_choice("field.encoding", self.encoding, ("triplane", "dense"))
+        _check_choice("field.encoding", self.encoding, ("triplane", "dense", "positional"))
+        _check_choice("field.view_encoding", self.view_encoding, ("sh", "positional"))
+        if not (isinstance(self.layers, int) and self.layers >= 2):
+            raise ConfigError(f"field.layers must be an integer >= 2, got {self.layers!r}")
+        if self.skip_layer is not None and not (isinstance(self.skip_layer, int) and 0 < self.skip_layer < self.layers):
+            raise ConfigError(f"field.skip_layer must be None or in 1..{self.layers - 1}, got {self.skip_layer!r}")
         _check_choice("field.class_head", self.class_head, ("linear", "density"))
         _check_choice("field.density_combine", self.density_combine, ("sum", "max"))
         _check_choice("field.semantic_rendering", self.semantic_rendering, ("probs", "scores"))
@@ -111,12 +121,36 @@ class BuildConfig:
     preset: str = "fast"
 
 
+_MLP_FIELD = {"encoding": "positional", "view_encoding": "positional"}
+_MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decaying 10x)
+
 PRESETS: dict[str, dict] = {
     "fast": {},  # the default: tri-plane 64+128 x 8 channels, 1024-ray batches
     "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
         "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},
         "sampling": {"n_steps": 128, "grid_resolution": 32, "grid_warmup": 16},
         "train": {"steps": 500},
+    },
+    "dense": {  # a second explicit encoding: one 96^3 x 8 voxel grid instead of tri-planes
+        "field": {"encoding": "dense", "grid_resolution": 96, "channels": 8},
+    },
+    # The seed paper's MLP family (positional encoding 10 / 4 frequencies). Samples come from the
+    # same occupancy-grid marcher as the fast presets (192 steps across the box), not NeRF's
+    # coarse/fine pair; a 32^3 grid keeps its refreshes affordable for a large MLP.
+    "paper": {  # the original NeRF: 8 x 256 with the input again before layer 5
+        "field": {**_MLP_FIELD, "hidden": 256, "layers": 8, "skip_layer": 5},
+        "sampling": {"grid_resolution": 32},
+        "train": {**_MLP_TRAIN, "steps": 20000},
+    },
+    "multihead": {  # the seed's 6-layer variant; colour and class heads separate from the trunk
+        "field": {**_MLP_FIELD, "hidden": 128, "layers": 6},
+        "sampling": {"grid_resolution": 32},
+        "train": {**_MLP_TRAIN, "steps": 20000},
+    },
+    "tiny": {  # the seed's 3-layer variant
+        "field": {**_MLP_FIELD, "hidden": 64, "layers": 3},
+        "sampling": {"grid_resolution": 32},
+        "train": {**_MLP_TRAIN, "lr_mlp": 2e-3, "steps": 5000},
     },
 }
 

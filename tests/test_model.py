@@ -6,7 +6,7 @@ import torch
 
 from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.config import FieldConfig
-from scenelabel.fields.model import SemanticField3D, combine_class_densities
+from scenelabel.fields.model import SemanticField3D, SkipMLP, combine_class_densities
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 VARIANTS = [
@@ -17,6 +17,7 @@ VARIANTS = [
     {"field": {"class_head": "density", "semantic_rendering": "scores"}},
     {"train": {"semantic_loss": "focal", "focal_gamma": 2.0}},
     {"train": {"detach_semantic_weights": True}},
+    {"field": {"encoding": "positional", "view_encoding": "positional", "hidden": 32, "layers": 4, "skip_layer": 2}},
 ]
 
 
@@ -80,3 +81,30 @@ def test_each_variant_trains_builds_and_answers_queries(tiny_scene, tmp_path, ov
     np.testing.assert_allclose(q.probs.sum(-1), 1.0, atol=1e-9)
     r = field.query_rays(np.array([[0.0, 0.0, 3.0]]), np.array([[0.0, 0.0, -1.0]]))
     assert np.isfinite(r.depth).all() and np.allclose(r.probs.sum(-1), 1.0)
+
+
+def test_skip_mlp_matches_a_hand_written_forward():
+    torch.manual_seed(2)
+    mlp = SkipMLP(5, 8, 3, layers=4, skip=2)
+    x = torch.randn(6, 5)
+    lin = [m for m in mlp if isinstance(m, torch.nn.Linear)]
+    h = torch.relu(lin[0](x))
+    h = torch.relu(lin[1](h))
+    h = torch.relu(lin[2](torch.cat([h, x], -1)))  # the input again before layer 2
+    torch.testing.assert_close(mlp(x), lin[3](h))
+    assert [m.in_features for m in lin] == [5, 8, 13, 8]
+
+
+@pytest.mark.parametrize("name", ["paper", "multihead", "tiny", "dense"])
+def test_model_family_presets_build_a_field(name):
+    config = preset(name).field
+    model = SemanticField3D(config, 3, AABB)
+    pts = torch.rand(10, 3) * 2 - 1
+    sigmas, rgbs, logits = model(pts, torch.nn.functional.normalize(torch.randn(10, 3), dim=-1))
+    assert sigmas.shape == (10,) and rgbs.shape == (10, 3) and logits.shape == (10, 3)
+    n_linear = sum(isinstance(m, torch.nn.Linear) for m in model.trunk)
+    assert n_linear == config.layers
+    if name == "paper":  # NeRF: 8 x 256, γ(x) with 10 frequencies (63 dims) again before layer 5
+        assert (config.hidden, config.layers, config.skip_layer) == (256, 8, 5)
+        assert model.trunk[0].in_features == 63 and model.trunk[10].in_features == 256 + 63
+        assert model.view_encoding.out_dim == 27

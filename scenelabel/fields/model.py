@@ -12,7 +12,7 @@ from torch import nn
 
 from ..config import FieldConfig
 from ..errors import ConfigError
-from .encodings import DenseGrid, TriPlane, sh_directions
+from .encodings import DenseGrid, Positional, TriPlane, sh_directions
 
 __all__ = ["SemanticField3D", "build_encoding", "trunc_exp", "combine_class_densities"]
 
@@ -45,7 +45,34 @@ def build_encoding(config: FieldConfig) -> nn.Module:
         return TriPlane(config.resolutions, config.channels)
     if config.encoding == "dense":
         return DenseGrid(config.grid_resolution, config.channels)
-    raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane' or 'dense'")
+    if config.encoding == "positional":
+        return Positional(config.pe_frequencies)
+    raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane', 'dense' or 'positional'")
+
+
+class SkipMLP(nn.Sequential):
+    """Linear layers with ReLU between them; the input is concatenated again before layer
+    ``skip`` (NeRF's skip connection). Layout (state-dict keys) is that of nn.Sequential."""
+
+    def __init__(self, in_dim: int, hidden: int, out_dim: int, layers: int, skip: int | None = None):
+        mods: list[nn.Module] = []
+        for i in range(layers):
+            d_in = in_dim if i == 0 else hidden + (in_dim if i == skip else 0)
+            mods.append(nn.Linear(d_in, out_dim if i == layers - 1 else hidden))
+            if i < layers - 1:
+                mods.append(nn.ReLU())
+        super().__init__(*mods)
+        self.skip = skip
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h, layer = x, 0
+        for mod in self:
+            if isinstance(mod, nn.Linear):
+                if layer == self.skip:
+                    h = torch.cat([h, x], -1)
+                layer += 1
+            h = mod(h)
+        return h
 
 
 def combine_class_densities(class_sigmas: torch.Tensor, how: str) -> torch.Tensor:
@@ -68,7 +95,8 @@ class SemanticField3D(nn.Module):
       σ_j = trunc_exp(s_j + density_bias); σ = Σ_j σ_j or max_j σ_j (eq. 4), and the class
       scores are s_j, so softmax(s)_j = σ_j / Σ_k σ_k: each class's share of the density.
 
-    Colour: (h, SH(d)) -> hidden -> rgb in both.
+    Colour: (h, SH(d) or γ(d)) -> hidden -> rgb in both. The trunk is ``layers`` deep, with
+    NeRF's skip connection when ``skip_layer`` is set (:class:`SkipMLP`).
     """
 
     def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor):
@@ -79,10 +107,10 @@ class SemanticField3D(nn.Module):
         self.encoding = build_encoding(config)
         h = config.hidden
         self._n_density = num_classes if config.class_head == "density" else 1
-        self.trunk = nn.Sequential(
-            nn.Linear(self.encoding.out_dim, h), nn.ReLU(), nn.Linear(h, h + self._n_density)
-        )
-        rgb_in = h + (SH_DIM if config.view_dependent else 0)
+        self.trunk = SkipMLP(self.encoding.out_dim, h, h + self._n_density, config.layers, config.skip_layer)
+        self.view_encoding = Positional(config.pe_view_frequencies) if config.view_encoding == "positional" else None
+        view_dim = SH_DIM if self.view_encoding is None else self.view_encoding.out_dim
+        rgb_in = h + (view_dim if config.view_dependent else 0)
         self.rgb_head = nn.Sequential(nn.Linear(rgb_in, h), nn.ReLU(), nn.Linear(h, 3))
         self.class_head = nn.Linear(h, num_classes) if config.class_head == "linear" else None
 
@@ -120,6 +148,9 @@ class SemanticField3D(nn.Module):
     def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
         sigmas, h, raw = self._trunk(points)
-        rgb_in = torch.cat([h, sh_directions(directions)], -1) if self.config.view_dependent else h
+        rgb_in = h
+        if self.config.view_dependent:
+            views = sh_directions(directions) if self.view_encoding is None else self.view_encoding(directions)
+            rgb_in = torch.cat([h, views], -1)
         rgbs = torch.sigmoid(self.rgb_head(rgb_in))
         return sigmas, rgbs, self._class_logits(h, raw)
