@@ -1,7 +1,9 @@
 """Benchmark presets on the synthetic scenes and write docs/benchmarks.md.
 
-    .venv/bin/python tools/bench.py                    # all scenes x presets, rewrites docs/benchmarks.md
+    .venv/bin/python tools/bench.py                    # the end-to-end targets: docs/benchmarks.md
     .venv/bin/python tools/bench.py --scenes toy --presets quick --out /tmp/b.md
+    .venv/bin/python tools/bench.py --presets quick fast dense tiny paper --budgets 45 170 \
+        --ablations eq5-sum eq5-max eq3-scores focal detached --plot --out docs/tradeoff.md
 
 Each build runs in a fresh subprocess (so peak memory is its own); the numbers in the document come
 from this run only. Times are wall-clock on the machine that ran it (recorded in the document).
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
 import os
 import platform
@@ -45,22 +48,39 @@ TARGETS = (
 )
 
 
-def _one_build(scene_name: str, preset_name: str, steps: int | None, budget: float | None, workdir: str, queue) -> None:
-    """Child process: write the scene, build it, time queries and the map; put a result dict on queue."""
+# Ablations of the seed paper's choices (config overrides on top of the preset); "-" = the preset as is.
+VARIANTS: dict[str, dict] = {
+    "-": {},
+    "eq5-sum": {"field": {"class_head": "density", "density_combine": "sum"}},
+    "eq5-max": {"field": {"class_head": "density", "density_combine": "max"}},
+    "eq3-scores": {"field": {"semantic_rendering": "scores"}},
+    "focal": {"train": {"semantic_loss": "focal", "focal_gamma": 2.0}},
+    "detached": {"train": {"detach_semantic_weights": True}},
+}
+
+
+def _one_build(spec: dict, workdir: str, queue) -> None:
+    """Child process: write the scene, build it, time queries and the map; put a result dict on queue.
+
+    spec: {"scene", "preset", "variant", "steps" (or None), "budget" (or None)}.
+    """
     import torch
 
     import scenelabel
     from scenelabel import SemanticField, build, preset
 
     torch.set_num_threads(os.cpu_count() or 1)
+    scene_name, preset_name, budget = spec["scene"], spec["preset"], spec["budget"]
     writer = getattr(scenelabel, SCENES[scene_name][0])
     scene_dir = writer(Path(workdir) / scene_name)
-    train: dict = {}
-    if steps is not None:
-        train["steps"] = steps
+    overrides = json.loads(json.dumps(VARIANTS[spec["variant"]]))  # a deep copy
+    train = overrides.setdefault("train", {})
+    if spec["steps"] is not None:
+        train["steps"] = spec["steps"]
     if budget is not None:
         train["time_budget"] = budget
-    config = preset(preset_name, {"train": train, "output": {"write_map": False}})
+    overrides["output"] = {"write_map": False}
+    config = preset(preset_name, overrides)
     t0 = time.perf_counter()
     result = build(scene_dir, Path(workdir) / f"{scene_name}-{preset_name}", config, progress=False)
     build_seconds = time.perf_counter() - t0
@@ -77,12 +97,21 @@ def _one_build(scene_name: str, preset_name: str, steps: int | None, budget: flo
         t0 = time.perf_counter()
         occ = field.occupancy_map()
         m_times.append(time.perf_counter() - t0)
+    scene = scenelabel.load_scene(scene_dir)
+    test_view = scene.names.index(field.meta["test_views"][0])
+    r_times = []
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        field.render_camera(scene.cameras, test_view)
+        r_times.append(time.perf_counter() - t0)
     m = result.metrics
     queue.put(
         {
             "scene": scene_name,
             "preset": preset_name,
+            "variant": spec["variant"],
             "time_budget": budget,
+            "budget_reached": budget is not None and m["train_seconds"] >= budget,
             "build_seconds": build_seconds,
             "train_seconds": m["train_seconds"],
             "steps": m["steps"],
@@ -92,6 +121,7 @@ def _one_build(scene_name: str, preset_name: str, steps: int | None, budget: flo
             "miou": m.get("miou"),
             "miou_smoothed": m.get("miou_smoothed"),
             "depth_error": m.get("depth_error"),
+            "render_ms": 1000 * statistics.median(r_times),
             "query_points_per_second": QUERY_POINTS / statistics.median(q_times),
             "map_seconds": statistics.median(m_times),
             "map_voxels": int(np.prod(occ.shape)),
@@ -101,11 +131,11 @@ def _one_build(scene_name: str, preset_name: str, steps: int | None, budget: flo
     )
 
 
-def run_one(scene: str, preset_name: str, steps: int | None, budget: float | None) -> dict:
+def run_one(spec: dict) -> dict:
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     with tempfile.TemporaryDirectory() as workdir:
-        proc = ctx.Process(target=_one_build, args=(scene, preset_name, steps, budget, workdir, queue))
+        proc = ctx.Process(target=_one_build, args=(spec, workdir, queue))
         proc.start()
         result = queue.get()
         proc.join()
@@ -116,7 +146,7 @@ def fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
 
-def write_markdown(rows: list[dict], path: Path, command: str) -> None:
+def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None) -> None:
     lines = [
         "# Benchmarks",
         "",
@@ -141,22 +171,70 @@ def write_markdown(rows: list[dict], path: Path, command: str) -> None:
         f"Map: `occupancy_map()` at the default voxel size (median of {REPEATS}). Peak memory: "
         "the build process's maximum resident set."),
         "",
-        "| scene | preset | budget s | steps | train s | steps/s | build s | PSNR | SSIM | mIoU | mIoU smoothed | depth abs rel | query_points pts/s | map s (voxels) | peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | preset | variant | budget s | steps | train s | steps/s | build s | PSNR | SSIM | mIoU | "
+        "mIoU smoothed | depth abs rel | render ms/frame | query_points pts/s | map s (voxels) | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['scene']} | {r['preset']} | {fmt(r.get('time_budget'), '.0f')} | {r['steps']} | "
+            f"| {r['scene']} | {r['preset']} | {r['variant']} | {fmt(r.get('time_budget'), '.0f')} | {r['steps']} | "
             f"{r['train_seconds']:.1f} | {r['steps_per_second']:.1f} | "
             f"{r['build_seconds']:.1f} | {fmt(r['psnr'], '.2f')} | {fmt(r['ssim'], '.3f')} | {fmt(r['miou'], '.3f')} | "
-            f"{fmt(r['miou_smoothed'], '.3f')} | {fmt(r['depth_error'], '.4f')} | {r['query_points_per_second']:,.0f} | "
+            f"{fmt(r['miou_smoothed'], '.3f')} | {fmt(r['depth_error'], '.4f')} | {r['render_ms']:.0f} | "
+            f"{r['query_points_per_second']:,.0f} | "
             f"{r['map_seconds']:.2f} ({r['map_voxels']:,} @ {r['map_voxel_size']:.3f}) | {r['peak_rss_mb']:.0f} |"
         )
+    if plot is not None:
+        lines += ["", f"![mIoU and PSNR against build time, one line per preset]({plot.name})"]
+    lines += ["", "Which preset to pick (best held-out mIoU among the presets as they are, per scene and budget):", ""]
+    lines += [f"- {line}" for line in pick_lines(rows)]
     lines += ["", "Targets (end-to-end issue, 2 cores), checked against the rows above:", ""]
     lines += [f"- {line}" for line in target_lines(rows)]
-    lines += ["", "Raw results: `docs/benchmarks.json`.", ""]
+    lines += ["", f"Raw results: `{path.with_suffix('.json').name}`.", ""]
     path.write_text("\n".join(lines))
     path.with_suffix(".json").write_text(json.dumps(rows, indent=2))
+
+
+def pick_lines(rows: list[dict]) -> list[str]:
+    """Per scene and budget: the preset with the best held-out mIoU (variant "-" rows only)."""
+    out = []
+    plain = [r for r in rows if r["variant"] == "-" and r["miou"] is not None]
+    for scene in dict.fromkeys(r["scene"] for r in plain):
+        for budget in sorted({r["time_budget"] or 0 for r in plain if r["scene"] == scene}):
+            # a run that finished before a smaller budget also stands for this one
+            cands = [r for r in plain if r["scene"] == scene and (r["time_budget"] or 0) <= budget
+                     and ((r["time_budget"] or 0) == budget or not r["budget_reached"])]
+            best = max(cands, key=lambda r: r["miou"])
+            out.append(
+                f"{scene}, {f'{budget:.0f} s' if budget else 'no budget'}: `{best['preset']}` ({best['miou']:.3f} mIoU, {best['psnr']:.2f} dB "
+                f"after {best['train_seconds']:.0f} s of training)"
+            )
+    return out
+
+
+def write_plot(rows: list[dict], path: Path) -> None:
+    """mIoU and PSNR against build time, one line per (scene, preset) over its budgets."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    plain = [r for r in rows if r["variant"] == "-" and r["miou"] is not None]
+    for (scene, name) in dict.fromkeys((r["scene"], r["preset"]) for r in plain):
+        pts = sorted((r["build_seconds"], r["miou"], r["psnr"]) for r in plain if (r["scene"], r["preset"]) == (scene, name))
+        style = "-o" if scene == "room" else "--s"
+        for ax, k in zip(axes, (1, 2)):
+            ax.plot([p[0] for p in pts], [p[k] for p in pts], style, label=f"{scene} / {name}")
+    for ax, label in zip(axes, ("held-out mIoU", "held-out PSNR (dB)")):
+        ax.set_xscale("log")
+        ax.set_xlabel("build wall time (s, log scale)")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[1].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def target_lines(rows: list[dict]) -> list[str]:
@@ -183,26 +261,57 @@ def target_lines(rows: list[dict]) -> list[str]:
     return out
 
 
+def plan(args: argparse.Namespace) -> list[dict]:
+    """The run specs: scenes x presets x budgets, then the ablation variants."""
+    budgets = sorted({b or None for b in args.budgets}, key=lambda b: b or math.inf)
+    specs = [
+        {"scene": scene, "preset": name, "variant": "-", "steps": args.steps, "budget": b}
+        for scene in args.scenes
+        for name in args.presets
+        for b in budgets
+    ]
+    specs += [
+        {"scene": scene, "preset": args.ablation_preset, "variant": v, "steps": args.steps, "budget": args.ablation_budget}
+        for scene in args.ablation_scenes
+        for v in args.ablations
+    ]
+    return specs
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     parser.add_argument("--presets", nargs="+", default=["quick", "fast"])
     parser.add_argument("--steps", type=int, help="override every preset's steps")
     parser.add_argument(
-        "--time-budget", type=float, default=DEFAULT_BUDGET,
-        help=f"training time cap per build in seconds (default {DEFAULT_BUDGET:.0f}; 0: none)",
+        "--budgets", nargs="+", type=float, default=[DEFAULT_BUDGET],
+        help=f"training time caps in seconds, one run each (default {DEFAULT_BUDGET:.0f}; 0: none)",
     )
+    parser.add_argument("--ablations", nargs="*", default=[], choices=[v for v in VARIANTS if v != "-"])
+    parser.add_argument("--ablation-scenes", nargs="+", default=["room"], choices=list(SCENES))
+    parser.add_argument("--ablation-preset", default="fast")
+    parser.add_argument("--ablation-budget", type=float, default=60.0)
     parser.add_argument("--out", default=str(REPO / "docs" / "benchmarks.md"))
+    parser.add_argument("--plot", action="store_true", help="also write <out>.png: mIoU and PSNR against time")
     args = parser.parse_args()
     command = "python tools/bench.py " + " ".join(sys.argv[1:])
-    rows = []
-    for scene in args.scenes:
-        for name in args.presets:
-            row = run_one(scene, name, args.steps, args.time_budget or None)
-            print(json.dumps(row), flush=True)
-            rows.append(row)
-    write_markdown(rows, Path(args.out), command.strip())
-    print(f"wrote {args.out}")
+    rows: list[dict] = []
+    finished_early: set[tuple] = set()  # (scene, preset): a run ended before its budget
+    for spec in plan(args):
+        key = (spec["scene"], spec["preset"], spec["variant"])
+        if key in finished_early:
+            continue  # a larger budget would repeat the same run
+        row = run_one(spec)
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+        if not row["budget_reached"]:
+            finished_early.add(key)
+    out = Path(args.out)
+    plot = out.with_suffix(".png") if args.plot else None
+    if plot is not None:
+        write_plot(rows, plot)
+    write_markdown(rows, out, command.strip(), plot)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
