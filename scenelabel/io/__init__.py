@@ -21,23 +21,34 @@ from pathlib import Path
 from ..errors import InputError
 from ..scene import Scene
 from .common import check_downscale
+from .label_map import LABEL_MAP_FILE, apply_label_map, read_label_map
 from .llff import POSES_BOUNDS_FILE, load_llff
 from .transforms_json import TRANSFORMS_FILE, load_transforms
 
-__all__ = ["load_scene", "load_transforms", "load_llff"]
+__all__ = ["load_scene", "load_transforms", "load_llff", "read_label_map", "apply_label_map"]
 
 
 def load_scene(path: str | Path, downscale: int = 1) -> Scene:
-    """Load a scene folder, whatever its format.
+    """Load a scene folder, whatever its format, and apply its ``label_map.json`` when present.
 
     Args:
         path: the scene folder, or a transforms ``.json`` / ``poses_bounds.npy`` file inside one.
         downscale: integer factor (>= 1) to shrink images, labels, depths and intrinsics by.
     Returns:
-        the Scene, ``info["format"]`` naming the format read.
+        the Scene, ``info["format"]`` naming the format read; labels and classes in the target
+        vocabulary of ``label_map.json`` (:mod:`scenelabel.io.label_map`) when the folder has one.
     Raises:
         InputError: missing folder, no recognised pose file, or any problem in the files.
     """
+    scene = _load_poses_format(path, downscale)
+    label_map_path = Path(scene.root) / LABEL_MAP_FILE
+    if label_map_path.is_file():
+        scene = apply_label_map(scene, read_label_map(label_map_path))
+    return scene
+
+
+def _load_poses_format(path: str | Path, downscale: int) -> Scene:
+    """Dispatch on the files present (see the module docstring)."""
     downscale = check_downscale(downscale)
     path = Path(path)
     if path.is_file():

@@ -181,6 +181,15 @@ def read_classes(path: Path) -> ClassesFile:
     path = Path(path)
     data = load_json(path)
     validate_json(data, "classes", path)
+    return classes_from_json(data, path)
+
+
+def classes_from_json(data: dict, path: Path) -> ClassesFile:
+    """The vocabulary of validated classes.json-style data (``classes``, optional ``ignore_index``).
+
+    Raises:
+        InputError: duplicate ids, or ignore_index equal to a class id.
+    """
     classes: dict[int, str] = {}
     colors: dict[int, tuple[int, int, int]] = {}
     for index, entry in enumerate(data["classes"]):
