@@ -12,7 +12,7 @@ from skimage.metrics import structural_similarity
 
 from .errors import InputError
 
-__all__ = ["confusion_matrix", "depth_error", "miou", "psnr", "ssim"]
+__all__ = ["boundary_f1", "confusion_matrix", "depth_error", "label_boundaries", "miou", "psnr", "ssim"]
 
 SSIM_WINDOW = 7
 """skimage's default SSIM window; smaller images use the largest odd window that fits."""
@@ -138,3 +138,52 @@ def depth_error(
         "rmse": float(np.sqrt(np.mean(diff**2))),
         "mae": float(np.mean(np.abs(diff))),
     }
+
+
+def label_boundaries(labels: np.ndarray, ignore_index: int | None = None) -> np.ndarray:
+    """[H, W] bool: pixels whose right or lower 4-neighbour has another label.
+
+    A pair where either pixel is ``ignore_index`` is not a boundary.
+    """
+    labels = np.asarray(labels)
+    edge = np.zeros(labels.shape, dtype=bool)
+    for axis in (0, 1):
+        a = labels.take(np.arange(labels.shape[axis] - 1), axis=axis)
+        b = labels.take(np.arange(1, labels.shape[axis]), axis=axis)
+        diff = a != b
+        if ignore_index is not None:
+            diff &= (a != ignore_index) & (b != ignore_index)
+        pad = [(0, 1) if ax == axis else (0, 0) for ax in range(2)]
+        edge |= np.pad(diff, pad)
+    return edge
+
+
+def boundary_f1(pred: np.ndarray, target: np.ndarray, tolerance: float = 2.0, ignore_index: int | None = None) -> float:
+    """Boundary F-score (Csurka et al. 2013): how well predicted label boundaries match true ones.
+
+    Precision: fraction of predicted boundary pixels within ``tolerance`` pixels (Euclidean) of a
+    true boundary; recall: the converse; F1 their harmonic mean. 1.0 when neither has a boundary,
+    0.0 when only one has.
+
+    Args:
+        pred, target: [H, W] integer label images.
+        tolerance: pixels.
+        ignore_index: target pixels with this value are never boundaries (pred boundaries there
+            are dropped too).
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    _same_shape(pred, target, "boundary_f1")
+    bt = label_boundaries(target, ignore_index)
+    bp = label_boundaries(pred)
+    if ignore_index is not None:
+        bp &= np.asarray(target) != ignore_index
+    if not bt.any() and not bp.any():
+        return 1.0
+    if not bt.any() or not bp.any():
+        return 0.0
+    near_true = distance_transform_edt(~bt) <= tolerance
+    near_pred = distance_transform_edt(~bp) <= tolerance
+    precision = float(near_true[bp].mean())
+    recall = float(near_pred[bt].mean())
+    return 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)

@@ -46,6 +46,7 @@ __all__ = [
     "RayHits",
     "SyntheticScene",
     "cast_rays",
+    "corrupt_labels",
     "furnished_room_geometry",
     "look_at",
     "pixel_rays",
@@ -640,3 +641,45 @@ def write_furnished_room(
     """
     n_total = _check_split(n_train, n_test)
     return write_scene(path, _ROOM, room_cameras(n_total, seed), width, height)
+
+
+# --------------------------------------------------------------------------------------------
+# Label noise (what a real 2D segmenter's mistakes look like: blobs of a wrong class)
+
+
+def corrupt_labels(
+    label: np.ndarray, fraction: float, class_ids, rng: np.random.Generator, ignore_index: int | None = BACKGROUND_ID
+) -> np.ndarray:
+    """A copy of ``label`` with random discs of wrong classes over ~``fraction`` of its labelled pixels.
+
+    Discs (radius 3-12% of the image's shorter side) are painted one by one, each with a class
+    drawn from ``class_ids``; a pixel counts as corrupted once its class differs from the
+    original. Painting stops as soon as at least ``fraction`` of the labelled (not
+    ``ignore_index``) pixels are corrupted, so the result is within one disc of the target.
+
+    Args:
+        label: [H, W] int class ids.
+        fraction: in [0, 1).
+        class_ids: the classes the blobs may take (at least two).
+        rng: numpy Generator (deterministic for a seed).
+    Returns:
+        [H, W] int64.
+    """
+    if not 0.0 <= fraction < 1.0:
+        raise InputError(f"fraction must be in [0, 1), got {fraction}", field="fraction")
+    class_ids = np.asarray(sorted(set(int(c) for c in class_ids)), dtype=np.int64)
+    if len(class_ids) < 2:
+        raise InputError("corrupting labels needs at least two classes", field="class_ids")
+    original = np.asarray(label, dtype=np.int64)
+    out = original.copy()
+    labelled = original != ignore_index if ignore_index is not None else np.ones(original.shape, bool)
+    n_labelled = int(labelled.sum())
+    h, w = original.shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    short = min(h, w)
+    while n_labelled and ((out != original) & labelled).sum() < fraction * n_labelled:
+        r = rng.uniform(0.03, 0.12) * short
+        cy, cx = rng.uniform(0, h), rng.uniform(0, w)
+        disc = ((rows - cy) ** 2 + (cols - cx) ** 2 <= r * r) & labelled
+        out[disc] = rng.choice(class_ids)
+    return out

@@ -7,7 +7,7 @@ import pytest
 from skimage.metrics import structural_similarity
 
 from scenelabel.errors import InputError
-from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
+from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim, boundary_f1, label_boundaries
 
 
 def naive_confusion(pred, target, class_ids, ignore):
@@ -131,3 +131,35 @@ def test_depth_error_mask_and_naive_loop():
     assert math.isclose(err["abs_rel"], float(np.mean(rels)), rel_tol=1e-12)
     none = depth_error(pred, target, np.zeros_like(mask))
     assert all(math.isnan(v) for v in none.values())
+
+
+def _naive_boundaries(lab):
+    h, w = lab.shape
+    out = np.zeros((h, w), bool)
+    for i in range(h):
+        for j in range(w):
+            if (i + 1 < h and lab[i + 1, j] != lab[i, j]) or (j + 1 < w and lab[i, j + 1] != lab[i, j]):
+                out[i, j] = True
+    return out
+
+
+def test_label_boundaries_match_a_loop():
+    rng = np.random.default_rng(0)
+    lab = rng.integers(0, 3, (9, 11))
+    np.testing.assert_array_equal(label_boundaries(lab), _naive_boundaries(lab))
+
+
+def test_boundary_f1_values():
+    gt = np.zeros((20, 20), int)
+    gt[:, 10:] = 1
+    assert boundary_f1(gt, gt) == 1.0
+    shifted = np.zeros_like(gt)
+    shifted[:, 12:] = 1  # boundary 2 px off: within a tolerance of 2, beyond a tolerance of 1
+    assert boundary_f1(shifted, gt, tolerance=2) == 1.0
+    assert boundary_f1(shifted, gt, tolerance=1) == 0.0
+    assert boundary_f1(np.zeros_like(gt), gt) == 0.0
+    assert boundary_f1(np.zeros_like(gt), np.zeros_like(gt)) == 1.0
+    noisy = gt.copy()
+    noisy[5, 3] = 1  # a speck: extra predicted boundary far from the true one lowers precision only
+    f = boundary_f1(noisy, gt, tolerance=1)
+    assert 0.8 < f < 1.0

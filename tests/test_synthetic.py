@@ -350,3 +350,24 @@ def test_deterministic(tmp_path):
     a = write_toy_scene(tmp_path / "a", n_train=7, n_test=1, width=16, height=12)
     b = write_toy_scene(tmp_path / "b", n_train=7, n_test=1, width=16, height=12)
     np.testing.assert_array_equal(np.array(Image.open(a / "images" / "005.png")), np.array(Image.open(b / "images" / "005.png")))
+
+
+def test_corrupt_labels_hits_the_fraction_and_keeps_ignored_pixels():
+    from scenelabel.synthetic import corrupt_labels
+
+    rng = np.random.default_rng(0)
+    lab = np.full((60, 80), 1, np.int64)
+    lab[20:40, 30:50] = 3
+    lab[:5] = BACKGROUND_ID
+    for fraction in (0.0, 0.1, 0.3, 0.5):
+        out = corrupt_labels(lab, fraction, [1, 3, 7], rng)
+        labelled = lab != BACKGROUND_ID
+        got = ((out != lab) & labelled).sum() / labelled.sum()
+        assert fraction <= got < fraction + 0.15, (fraction, got)
+        np.testing.assert_array_equal(out[~labelled], BACKGROUND_ID)
+        assert set(np.unique(out[labelled]).tolist()) <= {1, 3, 7}
+    a = corrupt_labels(lab, 0.2, [1, 3], np.random.default_rng(5))
+    b = corrupt_labels(lab, 0.2, [1, 3], np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(InputError):
+        corrupt_labels(lab, 1.0, [1, 3], rng)
