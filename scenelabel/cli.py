@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ._version import __version__
 from .config import PRESETS, preset
-from .errors import ScenelabelError, TrainingInterrupted
+from .errors import InputError, ScenelabelError, TrainingInterrupted
 
 __all__ = ["main"]
 
@@ -108,13 +108,44 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print(f"renders: {out / 'renders'}   map: {out / 'map.zarr'}")
 
 
-def _cmd_export(args: argparse.Namespace) -> None:
-    from .semantic_field import SemanticField
+EXPORT_FORMATS = ("zarr", "ply", "mesh", "nav2")
 
-    field = SemanticField.load(args.build)
-    occ = field.occupancy_map(args.voxel_size)
-    path = occ.to_zarr(args.out, zarr_format=args.zarr_format)
-    print(f"wrote {path}: {occ.shape} voxels of {occ.voxel_size:g}")
+
+def _load_map(source: Path, voxel_size: float | None):
+    """The occupancy map of a build folder (evaluated at ``voxel_size``) or of a map .zarr folder."""
+    from .maps import OccupancyMap
+
+    is_build = (source / "checkpoint.pt").is_file() or (source.is_file() and source.suffix == ".pt")
+    is_zarr = source.is_dir() and ((source / "zarr.json").is_file() or (source / ".zgroup").is_file())
+    if is_build:
+        from .semantic_field import SemanticField
+
+        return SemanticField.load(source).occupancy_map(voxel_size)
+    if is_zarr:
+        if voxel_size is not None:
+            raise InputError("--voxel-size applies to a build folder; a map keeps its own voxel size", path=source)
+        return OccupancyMap.from_zarr(source)
+    raise InputError("neither a build folder (with checkpoint.pt) nor an occupancy map (.zarr folder)", path=source)
+
+
+def _cmd_export(args: argparse.Namespace) -> None:
+    from . import exports
+
+    occ = _load_map(Path(args.source), args.voxel_size)
+    out = Path(args.out)
+    if args.format == "zarr":
+        path = occ.to_zarr(out, zarr_format=args.zarr_format)
+        print(f"wrote {path}: {occ.shape} voxels of {occ.voxel_size:g}")
+    elif args.format == "ply":
+        path = exports.write_point_cloud(occ, out)
+        print(f"wrote {path}: {int((occ.label >= 0).sum())} occupied voxel centres")
+    elif args.format == "mesh":
+        paths = exports.write_class_meshes(occ, out)
+        names = ", ".join(occ.classes[cid] for cid in paths) or "none (no occupied voxel)"
+        print(f"wrote {len(paths)} class meshes to {out}: {names}")
+    else:
+        paths = exports.write_nav2(occ, out, args.z_min, args.z_max, args.robot_height)
+        print("wrote " + ", ".join(str(p) for p in paths.values()))
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -142,11 +173,21 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--room", action="store_true", help="the furnished room instead of the two-box toy scene")
     p.set_defaults(func=_cmd_toy)
 
-    p = sub.add_parser("export", help="export the occupancy map of a build")
-    p.add_argument("build", help="build folder (with checkpoint.pt)")
-    p.add_argument("out", help="output .zarr path")
-    p.add_argument("--voxel-size", type=float, help="voxel size in world units (default: from the images)")
-    p.add_argument("--zarr-format", type=int, choices=(2, 3), default=3)
+    p = sub.add_parser(
+        "export",
+        help="export the occupancy map of a build (or of a map .zarr) as zarr, a point cloud, meshes or a Nav2 map",
+        description="Formats (docs/formats.md, 'Exports'): zarr: OUT is a .zarr folder; ply: OUT is a .ply point "
+        "cloud of occupied voxel centres; mesh: OUT is a folder of per-class .ply meshes; nav2: OUT is a path stem "
+        "for OUT.pgm, OUT.yaml and OUT_labels.png (a 2D floor plan of a height band).",
+    )
+    p.add_argument("source", metavar="BUILD_OR_MAP", help="build folder (with checkpoint.pt) or occupancy map (.zarr folder)")
+    p.add_argument("out", metavar="OUT", help="output path (see the formats)")
+    p.add_argument("--format", choices=EXPORT_FORMATS, default="zarr", help="output format (default: zarr)")
+    p.add_argument("--voxel-size", type=float, help="voxel size in world units, for a build folder (default: from the images)")
+    p.add_argument("--zarr-format", type=int, choices=(2, 3), default=3, help="zarr format version (--format zarr)")
+    p.add_argument("--z-min", type=float, help="nav2: bottom of the height band, world z (default: one voxel above the floor)")
+    p.add_argument("--z-max", type=float, help="nav2: top of the height band, world z (default: below the ceiling, or the map's top)")
+    p.add_argument("--robot-height", type=float, help="nav2: band top = floor top + this (world units)")
     p.set_defaults(func=_cmd_export)
     return parser
 

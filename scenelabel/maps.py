@@ -7,9 +7,17 @@ Numpy only (no torch). Conventions (docs/conventions.md, "Occupancy grids"):
   has centre ``origin + voxel_size * (i, j, k)`` and covers that centre ± ``voxel_size / 2``
   (half-open: ``[centre - voxel_size / 2, centre + voxel_size / 2)`` on each axis).
 - ``label`` is int16: class id >= 0 (external ids of classes.json), :data:`FREE` = -1,
-  :data:`UNKNOWN` = -2 (outside the modelled bounds, never evaluated).
+  :data:`UNKNOWN` = -2 (not observed: outside the modelled bounds, and with ``unknown_rule``
+  "visibility" also seen by no training camera).
 - ``occupancy`` is float32 in [0, 1]: ``1 - exp(-sigma * occupancy_delta)`` where the field was
   evaluated, and 0 where the label is UNKNOWN.
+- Optional ``probs``: uint8 [nx, ny, nz, C], the class distribution quantised (code / 255),
+  channel c for the c-th class of ``classes`` (ascending id); 0 where UNKNOWN.
+- Optional ``confidence``: uint8 [nx, ny, nz], ``1 - entropy / log C`` quantised (code / 255);
+  0 where UNKNOWN.
+- A pyramid level ``L`` halves the resolution ``L`` times (:meth:`OccupancyMap.downsample`,
+  :func:`pool_labels`): occupied if any child is occupied, FREE only if every child is FREE,
+  UNKNOWN otherwise (conservative for planners).
 
 The zarr layout is documented in docs/formats.md and its group attributes are described by
 ``scenelabel/schemas/occupancy_map.schema.json``.
@@ -27,6 +35,7 @@ Typical use by an exporter that evaluates a field in bounded memory::
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -58,15 +67,29 @@ __all__ = [
     "world_from_index",
     "validate_attributes",
     "load_schema",
+    "OCCUPANCY_ENCODING",
+    "UNKNOWN_RULES",
+    "uint8_from_unit",
+    "unit_from_uint8",
+    "confidence_from_probs",
+    "world_from_grid_matrix",
+    "pool_probs",
+    "pool_labels",
+    "pool_occupancy",
+    "default_levels",
+    "ngff_multiscales",
 ]
 
 FREE = -1
 """Label code of space modelled as empty."""
 UNKNOWN = -2
-"""Label code of space outside the modelled bounds (never evaluated)."""
+"""Label code of unobserved space: outside the modelled bounds, or (``unknown_rule``
+"visibility") seen by no training camera."""
 
 FORMAT_NAME = "scenelabel.occupancy_map"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: UNKNOWN may also mean "not observed" (``unknown_rule``), optional probs / confidence
+arrays, a pyramid under ``levels/``, OME-NGFF multiscales metadata. Version 1 maps still read."""
 INDEX_ORDER = "ijk=xyz"
 DIMENSION_NAMES = ("x", "y", "z")
 DEFAULT_CHUNKS = (64, 64, 64)
@@ -77,8 +100,31 @@ DEFAULT_FRAME_ID = "world"
 
 LABEL_ARRAY = "label"
 OCCUPANCY_ARRAY = "occupancy"
+PROBS_ARRAY = "probs"
+CONFIDENCE_ARRAY = "confidence"
+LEVELS_GROUP = "levels"
 LABEL_DTYPE = np.dtype(np.int16)
 OCCUPANCY_DTYPE = np.dtype(np.float32)
+QUANTISED_DTYPE = np.dtype(np.uint8)
+QUANTISATION_STEPS = 255
+"""Quantised arrays store ``round(value * 255)``; a code q means ``q / 255``."""
+PROBS_DIMENSION_NAMES = ("x", "y", "z", "class")
+UNKNOWN_WORD, FREE_WORD = "unknown", "free"  # CF flag_meanings of UNKNOWN and FREE
+
+OCCUPANCY_ENCODING = "1 - exp(-sigma_max * occupancy_delta)"
+"""How ``occupancy`` encodes density: the opacity of crossing δ at the voxel's largest density."""
+UNKNOWN_RULES = ("bounds", "visibility")
+"""``bounds``: UNKNOWN only outside the modelled bounds; ``visibility``: also where no training
+camera observed the voxel (docs/conventions.md, "Observed space")."""
+DEFAULT_UNKNOWN_RULE = "bounds"
+
+NGFF_VERSION_V2 = "0.4"  # OME-NGFF on zarr format 2
+NGFF_VERSION_V3 = "0.5"  # OME-Zarr on zarr format 3 (namespaced under "ome")
+NGFF_METRE_UNITS = ("metre", "meter")
+PYRAMID_FACTOR = 2
+MIN_COARSE_EDGE = 16
+"""Automatic pyramids stop before the coarsest level's longest axis would drop below this."""
+MAX_LEVELS = 8
 MAX_CLASS_ID = int(np.iinfo(np.int16).max)
 SCHEMA_FILE = "occupancy_map.schema.json"
 
@@ -257,6 +303,192 @@ def voxel_centers(
         yield slices, world_from_index(ijk, origin, voxel_size)
 
 
+def world_from_grid_matrix(origin: Any, voxel_size: float) -> np.ndarray:
+    """The 4x4 affine ``T_world_from_grid``: ``[x, y, z, 1] = T @ [i, j, k, 1]``, a voxel's centre.
+
+    Args:
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+    Returns:
+        [4, 4] float64: ``voxel_size * I`` on the diagonal, ``origin`` in the last column.
+    """
+    transform = np.eye(4)
+    transform[:3, :3] *= _positive(voxel_size, "voxel_size")
+    transform[:3, 3] = _vec3(origin, "origin")
+    return transform
+
+
+# --------------------------------------------------------------------------------------------
+# Quantisation and confidence (pure)
+# --------------------------------------------------------------------------------------------
+
+
+def uint8_from_unit(values: Any) -> np.ndarray:
+    """Values in [0, 1] -> uint8 codes ``round(value * 255)`` (clipped to [0, 1]; NaN -> 0).
+
+    Args:
+        values: any shape.
+    Returns:
+        uint8, same shape; :func:`unit_from_uint8` inverts it within 1 / 510.
+    """
+    v = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0)
+    return np.round(np.clip(v, 0.0, 1.0) * QUANTISATION_STEPS).astype(QUANTISED_DTYPE)
+
+
+def unit_from_uint8(codes: Any) -> np.ndarray:
+    """uint8 codes -> float32 values ``code / 255`` in [0, 1] (same shape)."""
+    return np.asarray(codes, dtype=np.float32) / np.float32(QUANTISATION_STEPS)
+
+
+def confidence_from_probs(probs: Any) -> np.ndarray:
+    """``1 - entropy / log C`` of class distributions: 1 for a one-hot, 0 for uniform.
+
+    Rows are normalised to sum 1 first; a row of zeros (UNKNOWN) gets 0; with C = 1 every
+    non-zero row gets 1.
+
+    Args:
+        probs: [..., C] non-negative class probabilities.
+    Returns:
+        [...] float64 in [0, 1].
+    """
+    p = np.asarray(probs, dtype=np.float64)
+    if p.ndim < 1 or p.shape[-1] < 1:
+        raise InputError(f"probs must have shape [..., C] with C >= 1, got {p.shape}", field="probs")
+    total = p.sum(-1)  # [...]
+    known = total > 0
+    if p.shape[-1] == 1:
+        return known.astype(np.float64)
+    q = p / np.where(known, total, 1.0)[..., None]  # [..., C] rows summing to 1
+    entropy = -np.sum(np.where(q > 0, q * np.log(np.where(q > 0, q, 1.0)), 0.0), axis=-1)  # [...]
+    return np.where(known, np.clip(1.0 - entropy / math.log(p.shape[-1]), 0.0, 1.0), 0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Pyramid pooling (pure)
+# --------------------------------------------------------------------------------------------
+
+
+def _factor(factor: Any) -> int:
+    if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, (int, np.integer)) or factor < 1:
+        raise InputError(f"factor must be an integer >= 1, got {factor!r}", field="factor")
+    return int(factor)
+
+
+def _children(array: np.ndarray, factor: int, fill: Any) -> np.ndarray:
+    """[nx, ny, nz, ...] -> [X, Y, Z, factor³, ...]: the children of each coarse voxel.
+
+    ``X = ceil(nx / factor)`` (and so on); children beyond the grid (when a side is not a multiple
+    of ``factor``) are ``fill``.
+    """
+    rest = array.shape[3:]
+    coarse = [-(-n // factor) for n in array.shape[:3]]  # ceil
+    pad = [(0, c * factor - n) for c, n in zip(coarse, array.shape[:3])] + [(0, 0)] * len(rest)
+    if any(after for _, after in pad):
+        array = np.pad(array, pad, constant_values=fill)
+    blocks = array.reshape(coarse[0], factor, coarse[1], factor, coarse[2], factor, *rest)
+    blocks = blocks.transpose(0, 2, 4, 1, 3, 5, *range(6, 6 + len(rest)))
+    return blocks.reshape(*coarse, factor**3, *rest)
+
+
+def pool_probs(label: np.ndarray, probs: np.ndarray, factor: int = PYRAMID_FACTOR) -> np.ndarray:
+    """Class distributions of coarse voxels (``factor``³ children each).
+
+    The normalised sum of the children's distributions over the *occupied* children where any
+    child is occupied; over all children where every child is FREE; zeros otherwise (UNKNOWN).
+
+    Args:
+        label: [nx, ny, nz] int labels (class id >= 0, FREE, UNKNOWN).
+        probs: [nx, ny, nz, C] float class probabilities.
+        factor: children per axis.
+    Returns:
+        [X, Y, Z, C] float64, rows summing to 1 or 0; X = ceil(nx / factor), ...
+    """
+    factor = _factor(factor)
+    children = _children(np.asarray(label), factor, UNKNOWN)  # [X, Y, Z, n]
+    occupied = children >= 0
+    any_occupied = occupied.any(-1)  # [X, Y, Z]
+    all_free = np.all(children == FREE, axis=-1)  # [X, Y, Z]
+    weight = np.where(any_occupied[..., None], occupied, all_free[..., None])  # [X, Y, Z, n]
+    child_probs = _children(np.asarray(probs, dtype=np.float64), factor, 0.0)  # [X, Y, Z, n, C]
+    total = np.einsum("xyzn,xyznc->xyzc", weight.astype(np.float64), child_probs)  # [X, Y, Z, C]
+    norm = total.sum(-1, keepdims=True)
+    return np.where(norm > 0, total / np.where(norm > 0, norm, 1.0), 0.0)
+
+
+def pool_labels(
+    label: np.ndarray,
+    occupancy: np.ndarray,
+    factor: int = PYRAMID_FACTOR,
+    class_ids: Any = None,
+    pooled_probs: np.ndarray | None = None,
+) -> np.ndarray:
+    """Labels of coarse voxels (``factor``³ children each), conservative for planners.
+
+    - occupied when **any** child is occupied (a thin obstacle never disappears); its class is
+      the argmax of ``pooled_probs`` (:func:`pool_probs`: the summed distributions of the
+      occupied children), or, without probabilities, the class of the occupied child with the
+      largest occupancy;
+    - FREE when **every** child is FREE;
+    - UNKNOWN otherwise: all children UNKNOWN, or a mix of FREE and UNKNOWN (children beyond the
+      grid's edge count as UNKNOWN).
+
+    Args:
+        label: [nx, ny, nz] int labels.
+        occupancy: [nx, ny, nz] occupancy (picks the class when ``pooled_probs`` is None).
+        factor: children per axis.
+        class_ids: [C] class id of each channel of ``pooled_probs``.
+        pooled_probs: [X, Y, Z, C] from :func:`pool_probs`, or None.
+    Returns:
+        [X, Y, Z] int16, X = ceil(nx / factor), ...
+    """
+    factor = _factor(factor)
+    children = _children(np.asarray(label), factor, UNKNOWN)  # [X, Y, Z, n]
+    occupied = children >= 0
+    child_occ = _children(np.asarray(occupancy, dtype=np.float64), factor, 0.0)  # [X, Y, Z, n]
+    densest = np.where(occupied, child_occ, -1.0).argmax(-1)  # [X, Y, Z]
+    cls = np.take_along_axis(children, densest[..., None], -1)[..., 0]  # [X, Y, Z]
+    if pooled_probs is not None and pooled_probs.shape[-1] > 0:
+        ids = np.asarray(class_ids, dtype=np.int64)
+        if ids.shape != pooled_probs.shape[-1:]:
+            raise InputError(
+                f"class_ids has {ids.size} entries for {pooled_probs.shape[-1]} probability channels", field="class_ids"
+            )
+        has_probs = pooled_probs.sum(-1) > 0
+        cls = np.where(has_probs, ids[pooled_probs.argmax(-1)], cls)
+    out = np.where(np.all(children == FREE, axis=-1), FREE, UNKNOWN)
+    return np.where(occupied.any(-1), cls, out).astype(LABEL_DTYPE)
+
+
+def pool_occupancy(occupancy: np.ndarray, coarse_label: np.ndarray, factor: int = PYRAMID_FACTOR) -> np.ndarray:
+    """Occupancy of coarse voxels: the max over the children (the densest child), 0 where the
+    coarse label is UNKNOWN.
+
+    Since ``max(1 - exp(-σ_i δ)) = 1 - exp(-max σ_i δ)``, the encoding and δ stay those of the
+    fine grid.
+
+    Args:
+        occupancy: [nx, ny, nz] in [0, 1].
+        coarse_label: [X, Y, Z] from :func:`pool_labels`.
+        factor: children per axis.
+    Returns:
+        [X, Y, Z] float32.
+    """
+    pooled = _children(np.asarray(occupancy, dtype=OCCUPANCY_DTYPE), _factor(factor), 0.0).max(-1)
+    if pooled.shape != np.shape(coarse_label):
+        raise InputError(f"coarse_label has shape {np.shape(coarse_label)}, expected {pooled.shape}", field="coarse_label")
+    return np.where(np.asarray(coarse_label) == UNKNOWN, np.float32(0), pooled).astype(OCCUPANCY_DTYPE)
+
+
+def default_levels(shape: Any, min_edge: int = MIN_COARSE_EDGE, max_levels: int = MAX_LEVELS) -> int:
+    """How many pyramid levels (level 0 included) a grid gets by default: halve while the
+    coarsest level's longest axis keeps at least ``min_edge`` voxels, at most ``max_levels``."""
+    longest = max(_shape3(shape))
+    levels = 1
+    while levels < max_levels and -(-longest // PYRAMID_FACTOR**levels) >= min_edge:
+        levels += 1
+    return levels
+
+
 # --------------------------------------------------------------------------------------------
 # Schema
 # --------------------------------------------------------------------------------------------
@@ -334,6 +566,14 @@ class OccupancyMap:
         scale_source: where the world scale comes from ("input": the input's poses).
         units: unit of lengths: "metre" when known metric, else "input" (the input's unit).
         version: scenelabel version that made the map.
+        probs: [nx, ny, nz, C] uint8 or None: class probabilities quantised (code / 255),
+            channel c for the c-th id of ``classes`` (ascending); 0 wherever label is UNKNOWN.
+            Floats in [0, 1] are accepted and quantised.
+        confidence: [nx, ny, nz] uint8 or None: ``1 - entropy / log C`` of the class
+            distribution, quantised (code / 255); 0 wherever label is UNKNOWN. Floats in [0, 1]
+            are accepted and quantised.
+        unknown_rule: what UNKNOWN means: "bounds" (outside the modelled bounds) or
+            "visibility" (also: observed by no training camera).
 
     Arrays are converted (copy-free when already right) and checked on construction, and kept
     as read-only views: the instance and its arrays are frozen (copy an array to edit it).
@@ -351,6 +591,9 @@ class OccupancyMap:
     scale_source: str = DEFAULT_SCALE_SOURCE
     units: str = DEFAULT_UNITS
     version: str = __version__
+    probs: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    unknown_rule: str = DEFAULT_UNKNOWN_RULE
 
     def __post_init__(self) -> None:
         set_ = functools.partial(object.__setattr__, self)
@@ -373,6 +616,10 @@ class OccupancyMap:
         occupancy = self._check_occupancy(occupancy.astype(OCCUPANCY_DTYPE, copy=False), label)
         set_("label", _read_only(label))
         set_("occupancy", _read_only(occupancy))
+        set_("probs", self._check_quantised(self.probs, label, label.shape + (len(classes),), PROBS_ARRAY))
+        set_("confidence", self._check_quantised(self.confidence, label, label.shape, CONFIDENCE_ARRAY))
+        if self.unknown_rule not in UNKNOWN_RULES:
+            raise InputError(f"unknown_rule must be one of {list(UNKNOWN_RULES)}, got {self.unknown_rule!r}", field="unknown_rule")
         set_("classes", classes)
         set_("class_colors", self._check_colors(self.class_colors, classes))
         set_("voxel_size", _positive(self.voxel_size, "voxel_size"))
@@ -437,6 +684,26 @@ class OccupancyMap:
         return occupancy
 
     @staticmethod
+    def _check_quantised(values: Any, label: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray | None:
+        """None, or a read-only uint8 array of ``shape`` that is 0 wherever label is UNKNOWN."""
+        if values is None:
+            return None
+        array = np.asarray(values)
+        if array.shape != shape:
+            raise InputError(f"{name} must have shape {list(shape)}, got {list(array.shape)}", field=name)
+        if array.dtype == QUANTISED_DTYPE:
+            codes = array
+        elif np.issubdtype(array.dtype, np.floating):
+            if array.size and not (np.all(np.isfinite(array)) and array.min() >= 0.0 and array.max() <= 1.0):
+                raise InputError(f"{name} must be finite and in [0, 1]", field=name)
+            codes = uint8_from_unit(array)
+        else:
+            raise InputError(f"{name} must be uint8 codes (value * 255) or floats in [0, 1], got dtype {array.dtype}", field=name)
+        if np.any(codes[label == UNKNOWN]):
+            raise InputError(f"{name} must be 0 where label is UNKNOWN (-2)", field=name)
+        return _read_only(codes)
+
+    @staticmethod
     def _check_colors(
         colors: Mapping[int, Any] | None, classes: dict[int, str]
     ) -> dict[int, tuple[int, int, int]] | None:
@@ -480,6 +747,16 @@ class OccupancyMap:
         return lo, lo + self.voxel_size * np.asarray(self.shape, dtype=np.float64)
 
     @property
+    def class_ids(self) -> np.ndarray:
+        """[C] int64 class ids, ascending: the channel order of ``probs``."""
+        return np.fromiter(self.classes, dtype=np.int64, count=len(self.classes))
+
+    @property
+    def T_world_from_grid(self) -> np.ndarray:
+        """[4, 4] affine from voxel index to world centre: ``[x, y, z, 1] = T @ [i, j, k, 1]``."""
+        return world_from_grid_matrix(self.origin, self.voxel_size)
+
+    @property
     def occupied(self) -> np.ndarray:
         """[nx, ny, nz] bool: occupancy >= occupancy_threshold."""
         return self.occupancy >= self.occupancy_threshold
@@ -512,6 +789,55 @@ class OccupancyMap:
         out[inside] = self.occupancy[tuple(idx[inside].T)]
         return out
 
+    # ---- pyramid ----
+
+    def downsample(self, factor: int = PYRAMID_FACTOR) -> OccupancyMap:
+        """The map at 1 / ``factor`` the resolution: each coarse voxel pools ``factor``³ children.
+
+        Rules (:func:`pool_labels`, :func:`pool_probs`, :func:`pool_occupancy`): occupied if any
+        child is occupied, with the argmax class of the occupied children's summed probabilities;
+        FREE only if every child is FREE; UNKNOWN otherwise (a FREE / UNKNOWN mix is UNKNOWN).
+        Occupancy is the children's max (same ``occupancy_delta``); confidence is recomputed from
+        the pooled probabilities (None when the map has no probs). The coarse grid starts at the
+        same min corner and has ``ceil(n / factor)`` voxels per axis; children beyond the fine
+        grid count as UNKNOWN.
+
+        Args:
+            factor: children per axis, an integer >= 1 (1 returns this map).
+        Returns:
+            a new OccupancyMap with ``voxel_size * factor``.
+        """
+        factor = _factor(factor)
+        if factor == 1:
+            return self
+        probs = None if self.probs is None else pool_probs(self.label, unit_from_uint8(self.probs), factor)
+        label = pool_labels(self.label, self.occupancy, factor, self.class_ids, probs)
+        confidence = None
+        if probs is not None:
+            confidence = np.where(label == UNKNOWN, 0, uint8_from_unit(confidence_from_probs(probs)))
+            probs = uint8_from_unit(probs)
+        voxel_size = self.voxel_size * factor
+        return dataclasses.replace(
+            self,
+            label=label,
+            occupancy=pool_occupancy(self.occupancy, label, factor),
+            voxel_size=voxel_size,
+            origin=self.origin_corner + voxel_size / 2.0,
+            probs=probs,
+            confidence=None if confidence is None else confidence.astype(QUANTISED_DTYPE),
+        )
+
+    def pyramid(self, levels: int | None = None) -> list[OccupancyMap]:
+        """Levels 0 (this map), 1, ..., ``levels - 1``; level L is ``downsample(2 ** L)``.
+
+        Args:
+            levels: number of levels >= 1; None: :func:`default_levels` of the shape.
+        """
+        levels = default_levels(self.shape) if levels is None else levels
+        if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) or not 1 <= levels <= MAX_LEVELS:
+            raise InputError(f"levels must be an integer in [1, {MAX_LEVELS}], got {levels!r}", field="levels")
+        return [self.downsample(PYRAMID_FACTOR**level) for level in range(int(levels))]
+
     # ---- comparison ----
 
     def __eq__(self, other: object) -> bool:
@@ -520,6 +846,8 @@ class OccupancyMap:
         return (
             np.array_equal(self.label, other.label)
             and np.array_equal(self.occupancy, other.occupancy)
+            and _same_optional(self.probs, other.probs)
+            and _same_optional(self.confidence, other.confidence)
             and self.attributes() == other.attributes()
         )
 
@@ -528,7 +856,11 @@ class OccupancyMap:
     # ---- zarr ----
 
     def attributes(self) -> dict[str, Any]:
-        """The zarr group attributes of this map (JSON-ready; see the schema)."""
+        """The map's own zarr group attributes (JSON-ready; see the schema).
+
+        :meth:`to_zarr` adds the layout ones: ``level`` and ``n_levels`` on every level's group,
+        and the OME-NGFF metadata (:func:`ngff_multiscales`) on the root.
+        """
         colors = self.class_colors or {}
         return {
             "format": FORMAT_NAME,
@@ -549,6 +881,9 @@ class OccupancyMap:
             "occupancy_threshold": self.occupancy_threshold,
             "occupancy_delta": self.occupancy_delta,
             "scale_source": self.scale_source,
+            "occupancy_encoding": OCCUPANCY_ENCODING,
+            "unknown_rule": self.unknown_rule,
+            "T_world_from_grid": self.T_world_from_grid.tolist(),
         }
 
     def to_zarr(
@@ -558,31 +893,39 @@ class OccupancyMap:
         chunks: tuple[int, int, int] = DEFAULT_CHUNKS,
         *,
         overwrite: bool = True,
+        levels: int | None = None,
     ) -> Path:
-        """Write the map as a zarr group (directory store), atomically.
+        """Write the map and its pyramid as a zarr group (directory store), atomically.
+
+        Layout (docs/formats.md): level 0's arrays at the root (``label``, ``occupancy``, and
+        ``probs`` / ``confidence`` when the map has them), level L >= 1 in the sub-group
+        ``levels/L`` with the same arrays and its own map attributes (:meth:`pyramid`); the
+        root also carries OME-NGFF multiscales metadata (``multiscales``, NGFF 0.4, in zarr
+        format 2; ``ome``, NGFF 0.5, in zarr format 3).
 
         The group is written into a hidden sibling ``.{name}.tmp-{pid}`` and renamed into place;
         an existing map at ``path`` is renamed aside first and removed once the new one is in
-        place. The group attributes (among them ``format``) are written last, so a temp folder
-        left by a killed process is never taken for a complete map.
+        place. The root group attributes (among them ``format``) are written last, so a temp
+        folder left by a killed process is never taken for a complete map.
 
         Args:
             path: the target directory (conventionally ``*.zarr``).
             zarr_format: 3 (default) or 2.
-            chunks: chunk shape of both arrays (clipped to the grid shape).
+            chunks: spatial chunk shape of every array (clipped to each level's shape; ``probs``
+                keeps all classes in one chunk).
             overwrite: replace an existing zarr group at ``path``; otherwise raise.
+            levels: pyramid levels to write, level 0 included; None: :func:`default_levels`.
         Returns:
             the absolute path written.
         Raises:
-            InputError: bad zarr_format / chunks, or ``path`` exists and is not a zarr group
-                (it is never deleted then) or overwrite is False.
+            InputError: bad zarr_format / chunks / levels, or ``path`` exists and is not a zarr
+                group (it is never deleted then) or overwrite is False.
         """
         import zarr
 
         if zarr_format not in (2, 3):
             raise InputError(f"zarr_format must be 2 or 3, got {zarr_format!r}", field="zarr_format")
         chunks = _shape3(chunks, "chunks")
-        chunks = tuple(min(c, n) for c, n in zip(chunks, self.shape))
         path = Path(path).expanduser().absolute()
         if path.exists() or path.is_symlink():
             if not overwrite:
@@ -591,27 +934,19 @@ class OccupancyMap:
                 raise InputError("exists and is not a zarr group; refusing to replace it", path=path)
         if not path.parent.is_dir():
             raise InputError("the parent folder does not exist", path=path.parent)
+        pyramid = self.pyramid(levels)
 
         tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
         _remove(tmp)
         try:
-            group = zarr.open_group(str(tmp), mode="w", zarr_format=zarr_format)
-            for name, data, fill, description in (
-                (LABEL_ARRAY, self.label, UNKNOWN, "class id >= 0, FREE = -1, UNKNOWN = -2"),
-                (OCCUPANCY_ARRAY, self.occupancy, 0.0, "occupancy = 1 - exp(-sigma * occupancy_delta), in [0, 1]"),
-            ):
-                array_attrs: dict[str, Any] = {"description": description}
-                extra: dict[str, Any] = {}
-                if zarr_format == 3:
-                    extra["dimension_names"] = list(DIMENSION_NAMES)
-                else:  # v2 has no dimension names: the xarray convention
-                    array_attrs["_ARRAY_DIMENSIONS"] = list(DIMENSION_NAMES)
-                array = group.create_array(
-                    name, shape=self.shape, dtype=data.dtype, chunks=chunks, fill_value=fill,
-                    attributes=array_attrs, **extra,
-                )
-                array[...] = data
-            group.attrs.update(self.attributes())  # last: marks the group complete
+            root = zarr.open_group(str(tmp), mode="w", zarr_format=zarr_format)
+            for level, level_map in enumerate(pyramid):
+                group = root if level == 0 else root.require_group(LEVELS_GROUP).require_group(str(level))
+                level_map._write_arrays(group, zarr_format, chunks)
+                if level:
+                    group.attrs.update(level_map._group_attributes(level, len(pyramid)))
+            # last: marks the map complete
+            root.attrs.update({**self._group_attributes(0, len(pyramid)), **ngff_multiscales(pyramid, zarr_format)})
         except BaseException:
             _remove(tmp)
             raise
@@ -630,14 +965,60 @@ class OccupancyMap:
         _remove(aside)
         return path
 
-    @staticmethod
-    def from_zarr(path: str | Path) -> "OccupancyMap":
-        """Read a map written by :meth:`to_zarr` (zarr format 2 or 3).
+    def _group_attributes(self, level: int, n_levels: int) -> dict[str, Any]:
+        """Attributes of the group holding this map as pyramid level ``level`` of ``n_levels``."""
+        return {**self.attributes(), "level": level, "n_levels": n_levels}
 
+    def _write_arrays(self, group: Any, zarr_format: int, chunks: tuple[int, int, int]) -> None:
+        """Write this map's arrays into a zarr group (no group attributes)."""
+        chunks = tuple(min(c, n) for c, n in zip(chunks, self.shape))
+        scaled = {"scale_factor": 1.0 / QUANTISATION_STEPS, "add_offset": 0.0}  # CF: value = code * scale_factor
+        names = [UNKNOWN_WORD, FREE_WORD] + [_flag_word(cid, name) for cid, name in self.classes.items()]
+        arrays = [
+            (LABEL_ARRAY, self.label, UNKNOWN, {
+                "description": "class id >= 0, FREE = -1, UNKNOWN = -2",
+                "flag_values": [UNKNOWN, FREE, *self.classes],  # CF: flag_values / flag_meanings
+                "flag_meanings": " ".join(names),
+            }),
+            (OCCUPANCY_ARRAY, self.occupancy, 0.0, {
+                "description": "occupancy = 1 - exp(-sigma * occupancy_delta), in [0, 1]",
+            }),
+        ]
+        if self.probs is not None:
+            arrays.append((PROBS_ARRAY, self.probs, 0, {
+                "description": "class probabilities quantised: p = code / 255; channel c is class_ids[c]; 0 where UNKNOWN",
+                "class_ids": self.class_ids.tolist(),
+                **scaled,
+            }))
+        if self.confidence is not None:
+            arrays.append((CONFIDENCE_ARRAY, self.confidence, 0, {
+                "description": "1 - entropy / log(C) of the class distribution, quantised: code / 255; 0 where UNKNOWN",
+                **scaled,
+            }))
+        for name, data, fill, array_attrs in arrays:
+            dims = PROBS_DIMENSION_NAMES if data.ndim == 4 else DIMENSION_NAMES
+            extra: dict[str, Any] = {}
+            if zarr_format == 3:
+                extra["dimension_names"] = list(dims)
+            else:  # v2 has no dimension names: the xarray convention
+                array_attrs["_ARRAY_DIMENSIONS"] = list(dims)
+            array = group.create_array(
+                name, shape=data.shape, dtype=data.dtype, chunks=chunks + data.shape[3:], fill_value=fill,
+                attributes=array_attrs, **extra,
+            )
+            array[...] = data
+
+    @staticmethod
+    def from_zarr(path: str | Path, level: int = 0) -> "OccupancyMap":
+        """Read a map written by :meth:`to_zarr` (zarr format 2 or 3; map format 1 or 2).
+
+        Args:
+            path: the map's root group (a ``levels/L`` sub-group also reads, as a map of its own).
+            level: pyramid level to read (0: full resolution; see the root's ``n_levels``).
         Raises:
             InputError naming the path and the attribute or array at fault: not a zarr group,
             not a scenelabel map, a newer format_version, an invalid or missing attribute, a
-            missing or malformed array.
+            missing or malformed array, a level the map does not have.
         """
         import zarr
 
@@ -648,37 +1029,33 @@ class OccupancyMap:
             group = zarr.open_group(str(path), mode="r")
         except Exception as exc:  # zarr raises several types for "not a group"
             raise InputError(f"not a zarr group ({type(exc).__name__}: {exc})", path=path) from None
-        attrs = dict(group.attrs.asdict())
-        if "format" not in attrs:
-            raise InputError(
-                "missing attribute 'format': not a scenelabel occupancy map, or an incomplete write",
-                path=path, field="format",
-            )
-        if attrs["format"] != FORMAT_NAME:
-            raise InputError(f"format is {attrs['format']!r}, expected {FORMAT_NAME!r}", path=path, field="format")
-        version = attrs.get("format_version")
-        if isinstance(version, int) and version > FORMAT_VERSION:
-            raise InputError(
-                f"format_version {version} is newer than this scenelabel reads ({FORMAT_VERSION}); upgrade scenelabel",
-                path=path, field="format_version",
-            )
-        validate_attributes(attrs, path=path)
-        voxel_size = float(attrs["voxel_size"])
-        origin = np.asarray(attrs["origin"], np.float64)
-        if not np.allclose(
-            np.asarray(attrs["origin_corner"], np.float64), origin - voxel_size / 2.0,
-            rtol=_CORNER_RTOL, atol=_CORNER_RTOL * voxel_size,
-        ):
-            raise InputError(
-                f"origin_corner {attrs['origin_corner']} is not origin - voxel_size / 2", path=path, field="origin_corner"
-            )
+        attrs = _checked_attributes(group, path)
+        if level != 0:
+            n_levels = int(attrs.get("n_levels", 1))
+            if isinstance(level, (bool, np.bool_)) or not isinstance(level, (int, np.integer)) or not 0 < level < n_levels:
+                raise InputError(
+                    f"no level {level!r} in this map: it has levels 0 to {n_levels - 1}", path=path, field="level"
+                )
+            try:
+                group = group[f"{LEVELS_GROUP}/{int(level)}"]
+            except KeyError:
+                raise InputError(f"missing group '{LEVELS_GROUP}/{level}'", path=path, field="level") from None
+            path = path / LEVELS_GROUP / str(int(level))
+            attrs = _checked_attributes(group, path)
 
         arrays = {}
-        for name, dtype in ((LABEL_ARRAY, LABEL_DTYPE), (OCCUPANCY_ARRAY, OCCUPANCY_DTYPE)):
+        for name, dtype, required in (
+            (LABEL_ARRAY, LABEL_DTYPE, True),
+            (OCCUPANCY_ARRAY, OCCUPANCY_DTYPE, True),
+            (PROBS_ARRAY, QUANTISED_DTYPE, False),
+            (CONFIDENCE_ARRAY, QUANTISED_DTYPE, False),
+        ):
             try:
                 node = group[name]
             except KeyError:
-                raise InputError(f"missing array {name!r}", path=path, field=name) from None
+                if required:
+                    raise InputError(f"missing array {name!r}", path=path, field=name) from None
+                continue
             if not isinstance(node, zarr.Array):
                 raise InputError(f"{name!r} is not an array", path=path, field=name)
             if node.dtype != dtype:
@@ -691,8 +1068,8 @@ class OccupancyMap:
             return OccupancyMap(
                 label=arrays[LABEL_ARRAY],
                 occupancy=arrays[OCCUPANCY_ARRAY],
-                voxel_size=voxel_size,
-                origin=origin,
+                voxel_size=float(attrs["voxel_size"]),
+                origin=np.asarray(attrs["origin"], np.float64),
                 classes=classes,
                 occupancy_delta=float(attrs["occupancy_delta"]),
                 class_colors=colors or None,
@@ -701,9 +1078,104 @@ class OccupancyMap:
                 scale_source=attrs["scale_source"],
                 units=attrs["units"],
                 version=attrs["scenelabel_version"],
+                probs=arrays.get(PROBS_ARRAY),
+                confidence=arrays.get(CONFIDENCE_ARRAY),
+                unknown_rule=attrs.get("unknown_rule", DEFAULT_UNKNOWN_RULE),  # version 1: bounds
             )
         except InputError as exc:
             raise InputError(exc.problem, path=path, field=exc.field) from None
+
+
+def _checked_attributes(group: Any, path: Path) -> dict[str, Any]:
+    """A map group's attributes, checked: format, version, schema, origin_corner, T_world_from_grid."""
+    attrs = dict(group.attrs.asdict())
+    if "format" not in attrs:
+        raise InputError(
+            "missing attribute 'format': not a scenelabel occupancy map, or an incomplete write",
+            path=path, field="format",
+        )
+    if attrs["format"] != FORMAT_NAME:
+        raise InputError(f"format is {attrs['format']!r}, expected {FORMAT_NAME!r}", path=path, field="format")
+    version = attrs.get("format_version")
+    if isinstance(version, int) and version > FORMAT_VERSION:
+        raise InputError(
+            f"format_version {version} is newer than this scenelabel reads ({FORMAT_VERSION}); upgrade scenelabel",
+            path=path, field="format_version",
+        )
+    validate_attributes(attrs, path=path)
+    voxel_size = float(attrs["voxel_size"])
+    origin = np.asarray(attrs["origin"], np.float64)
+    derived = {"origin_corner": origin - voxel_size / 2.0}
+    if "T_world_from_grid" in attrs:
+        derived["T_world_from_grid"] = world_from_grid_matrix(origin, voxel_size)
+    for name, expected in derived.items():
+        if not np.allclose(
+            np.asarray(attrs[name], np.float64), expected, rtol=_CORNER_RTOL, atol=_CORNER_RTOL * voxel_size
+        ):
+            raise InputError(f"{name} {attrs[name]} does not match origin and voxel_size", path=path, field=name)
+    return attrs
+
+
+def _flag_word(class_id: int, name: str) -> str:
+    """A class name as one CF flag_meanings word (whitespace -> '_'; empty -> class_ID)."""
+    word = "_".join(name.split())
+    return word or f"class_{class_id}"
+
+
+LABEL_POOLING_RULE = (
+    "occupied if any child is occupied (argmax class of the occupied children's summed probabilities), "
+    "FREE if every child is FREE, else UNKNOWN"
+)
+
+
+def ngff_multiscales(levels: list[OccupancyMap], zarr_format: int) -> dict[str, Any]:
+    """OME-NGFF multiscales metadata of a pyramid written by :meth:`OccupancyMap.to_zarr`.
+
+    One multiscale per spatial array (``label``, ``occupancy``, ``confidence`` when present;
+    ``probs`` is channel-last, which NGFF does not allow, so it is not listed). Axes x, y, z of
+    type "space" (unit "meter" when the map is metric, none otherwise); each level's dataset
+    maps an index to the world with ``scale = voxel_size`` then ``translation = origin`` (the
+    centre of voxel [0, 0, 0] of that level).
+
+    Args:
+        levels: the pyramid, level 0 first (:meth:`OccupancyMap.pyramid`).
+        zarr_format: 2 -> ``{"multiscales": [...]}`` (NGFF 0.4); 3 -> ``{"ome": {"version":
+            "0.5", "multiscales": [...]}}`` (NGFF 0.5).
+    Returns:
+        the group attributes to add.
+    """
+    base = levels[0]
+    unit = {"unit": "meter"} if base.units in NGFF_METRE_UNITS else {}
+    axes = [{"name": name, "type": "space", **unit} for name in DIMENSION_NAMES]
+    entries = []
+    for name, method, rule in (
+        (LABEL_ARRAY, "scenelabel.pool_labels", LABEL_POOLING_RULE),
+        (OCCUPANCY_ARRAY, "max", "max over the children; 0 where the coarse label is UNKNOWN"),
+        (CONFIDENCE_ARRAY, "scenelabel.pool_probs", "1 - entropy / log C of the pooled class probabilities"),
+    ):
+        if getattr(base, name) is None:
+            continue
+        datasets = [
+            {
+                "path": name if level == 0 else f"{LEVELS_GROUP}/{level}/{name}",
+                "coordinateTransformations": [
+                    {"type": "scale", "scale": [m.voxel_size] * 3},
+                    {"type": "translation", "translation": m.origin.tolist()},
+                ],
+            }
+            for level, m in enumerate(levels)
+        ]
+        entries.append({"name": name, "axes": axes, "datasets": datasets, "type": method, "metadata": {"method": rule}})
+    if zarr_format == 2:
+        return {"multiscales": [{"version": NGFF_VERSION_V2, **entry} for entry in entries]}
+    return {"ome": {"version": NGFF_VERSION_V3, "multiscales": entries}}
+
+
+def _same_optional(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Both None, or equal arrays."""
+    if a is None or b is None:
+        return a is None and b is None
+    return np.array_equal(a, b)
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:

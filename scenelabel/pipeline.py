@@ -2,7 +2,8 @@
 
 Orchestration on top of io, train, semantic_field and maps. Writes into the output folder:
 
-- ``checkpoint.pt``: weights + resolved config + class map + bounds + world transform
+- ``checkpoint.pt``: weights + resolved config + class map + bounds + world transform + training
+  cameras (what the maps' unknown rule needs)
 - ``config.json``: the resolved config (human-readable copy)
 - ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
 - ``renders/<view>.png``: ground truth | rgb | labels | smoothed labels, for held-out views
@@ -33,8 +34,9 @@ from .metrics import confusion_matrix, depth_error, miou, psnr, ssim
 from .postprocess import colorize_labels, side_by_side, smooth_class_probs
 from .sampling import OccupancyGrid
 from .scene import ClassMap, Scene
-from .semantic_field import SemanticField
+from .semantic_field import TRAIN_CAMERAS_KEY, SemanticField
 from .train import Trainer, rays_for_views
+from .visibility import cameras_to_dict
 
 __all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
 
@@ -82,7 +84,11 @@ def _seed_everything(seed: int) -> None:
 def _finest_cell(config: BuildConfig, aabb: np.ndarray) -> float:
     """World length of the encoding's finest cell along the scene box's longest side."""
     fc = config.field
-    res = max(fc.resolutions) if fc.encoding == "triplane" else fc.grid_resolution
+    res = {
+        "triplane": max(fc.resolutions),
+        "dense": fc.grid_resolution,
+        "positional": 2**fc.pe_frequencies,  # half a period of the highest frequency, in cells
+    }[fc.encoding]
     return float((aabb[1] - aabb[0]).max() / (res - 1))
 
 
@@ -230,6 +236,7 @@ def build(
         "default_voxel_size": default_voxel_size(scene, train_idx, aabb, finest),
         "train_views": [scene.names[i] for i in train_idx],
         "test_views": [scene.names[i] for i in test_idx],
+        TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
 

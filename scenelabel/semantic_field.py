@@ -3,13 +3,15 @@
 - ``query_points(xyz)``: density, occupancy, class probabilities and a label per point.
 - ``query_rays(origins, directions)``: colour, depth, opacity, class probabilities and label per ray.
 - ``render(c2w, width, height, focal)``: images of rgb, depth and labels.
-- ``occupancy_map(voxel_size)``: a semantic occupancy grid (:class:`scenelabel.maps.OccupancyMap`).
+- ``occupancy_map(voxel_size)``: a semantic occupancy grid (:class:`scenelabel.maps.OccupancyMap`),
+  UNKNOWN where no training camera observed (the training cameras are kept in the checkpoint).
 
 Every input and output is in the input's world frame and units (docs/conventions.md).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,14 +24,15 @@ from .errors import InputError
 from .fields.model import SemanticField3D
 from .io.transforms_json import opengl_to_opencv
 from .frame import SceneFrame
-from .maps import FREE, UNKNOWN, OccupancyMap, iter_chunks, lattice
+from .maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, iter_chunks, lattice, uint8_from_unit
 from .postprocess import smooth_class_probs
-from .rays import camera_directions_from_pixels, normalize_directions, pixel_grid
+from .rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
 from .renderer import ray_intervals, render_rays
-from .sampling import OccupancyGrid
+from .sampling import OccupancyGrid, march_uniform
 from .scene import Cameras, ClassMap
+from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, ray_box_distances, scaled_cameras
 
-__all__ = ["SemanticField", "PointQuery", "RayQuery", "RenderResult"]
+__all__ = ["SemanticField", "PointQuery", "RayQuery", "RenderResult", "TRAIN_CAMERAS_KEY"]
 
 OCCUPIED_THRESHOLD = 0.5
 """A point (or ray) counts as occupied (hit) when its occupancy (opacity) is at least this."""
@@ -39,6 +42,9 @@ MAX_MAP_VOXELS = 256**3 * 4
 
 MAX_SUBSAMPLES = 4
 """At most this many sub-samples per voxel axis when evaluating a map."""
+
+TRAIN_CAMERAS_KEY = "train_cameras"
+"""Checkpoint key: the training cameras (:func:`scenelabel.visibility.cameras_to_dict`, world frame)."""
 
 
 @dataclass
@@ -167,17 +173,25 @@ class SemanticField:
 
     @torch.no_grad()
     def _semantics_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
-        """σ (normalised units) [N] and class probs [N, C] at normalised points; 0 outside the grid."""
-        sig_out, prob_out = [], []
-        for i in range(0, len(points_n), chunk):
+        """σ (normalised units) [N] and class probs [N, C] at normalised points.
+
+        The network runs only where the occupancy grid may hold density (the grid is what
+        training and rendering use too): elsewhere σ = 0 and the probabilities are uniform
+        (no class evidence in space the field holds empty).
+        """
+        n, c = len(points_n), self.class_map.num_classes
+        sigmas_out = np.zeros(n)
+        probs_out = np.full((n, c), 1.0 / c)
+        for i in range(0, n, chunk):
             pts = self._tensor(points_n[i : i + chunk])
-            sigmas, logits = self.model.semantics(pts)
-            sigmas = torch.where(self.occupancy(pts), sigmas, torch.zeros_like(sigmas))
-            sig_out.append(sigmas.double().cpu().numpy())
-            prob_out.append(torch.softmax(logits.double(), -1).cpu().numpy())
-        if not sig_out:
-            return np.zeros(0), np.zeros((0, self.class_map.num_classes))
-        return np.concatenate(sig_out), np.concatenate(prob_out)
+            keep = self.occupancy(pts)  # [n_chunk] bool
+            if not bool(keep.any()):
+                continue
+            sigmas, logits = self.model.semantics(pts[keep])
+            rows = i + keep.nonzero()[:, 0].cpu().numpy()
+            sigmas_out[rows] = sigmas.cpu().numpy()
+            probs_out[rows] = torch.softmax(logits.double(), -1).cpu().numpy()
+        return sigmas_out, probs_out
 
     def _inside(self, xyz: np.ndarray) -> np.ndarray:
         return np.all((xyz >= self.aabb[0]) & (xyz <= self.aabb[1]), axis=-1)
@@ -346,20 +360,78 @@ class SemanticField:
         camera-to-scene-centre distance, but no finer than the field's own finest cell."""
         return float(self.meta["default_voxel_size"])
 
-    def occupancy_map(self, voxel_size: float | None = None, bounds=None, chunk: int = 32) -> OccupancyMap:
+    def training_cameras(self) -> Cameras | None:
+        """The training cameras (world frame, OpenCV axes) as the build stored them, or None for a
+        checkpoint made before scenelabel stored them."""
+        record = self.meta.get(TRAIN_CAMERAS_KEY)
+        return None if record is None else cameras_from_dict(record)
+
+    @torch.no_grad()
+    def _first_occupied_t_n(
+        self, origins_n: np.ndarray, directions: np.ndarray, near_n: np.ndarray, far_n: np.ndarray
+    ) -> np.ndarray:
+        """Distance (normalised units) along each ray to its first occupied sample, ``inf`` if none.
+
+        Rays march as in rendering (same step, within the box and [near, far]); a sample is
+        occupied when 1 - exp(-σ δ) >= 0.5 with δ = :attr:`occupancy_delta`, what
+        :meth:`query_points` calls occupied.
+
+        Args:
+            origins_n, directions: [R, 3] normalised-frame origins, unit directions.
+            near_n, far_n: [R] limits, normalised units (0 / inf for none).
+        Returns:
+            [R] float64.
+        """
+        sigma_n_occupied = math.log(2.0) / (self.occupancy_delta * self.frame.scale)  # σ per normalised unit
+        out = np.full(len(origins_n), np.inf)
+        todo = np.flatnonzero(far_n > near_n)  # rays with something to march
+        chunk = self.config.sampling.chunk_rays
+        for start in range(0, len(todo), chunk):
+            rows = todo[start : start + chunk]
+            o, d = self._tensor(origins_n[rows]), self._tensor(directions[rows])
+            t_min, t_max = ray_intervals(o, d, self._aabb_n, self._tensor(near_n[rows]), self._tensor(far_n[rows]))
+            longest = float((t_max - t_min).max()) if len(rows) else 0.0
+            if not longest > 0:
+                continue
+            n_samples = min(self._n_samples, math.ceil(longest / self._step_n) + 1)  # no empty tail
+            t_starts, t_ends = march_uniform(t_min, t_max, self._step_n, n_samples)  # [r, S]
+            t_mids = (0.5 * (t_starts + t_ends)).double().cpu().numpy()
+            points = origins_n[rows, None, :] + t_mids[..., None] * directions[rows, None, :]  # [r, S, 3]
+            sigma_n = self._semantics_n(points.reshape(-1, 3))[0].reshape(t_mids.shape)  # [r, S]
+            hit = (sigma_n >= sigma_n_occupied) & (t_ends > t_starts).cpu().numpy()  # [r, S]
+            first = hit.argmax(-1)  # [r]
+            out[rows] = np.where(hit.any(-1), t_mids[np.arange(len(rows)), first], np.inf)
+        return out
+
+    def occupancy_map(
+        self, voxel_size: float | None = None, bounds=None, chunk: int = 32, visibility: bool = True
+    ) -> OccupancyMap:
         """Evaluate the field on a voxel lattice, in chunks (bounded memory).
 
         A voxel's occupancy is the opacity of crossing it at its largest density,
         1 - exp(-max σ · voxel_size), the maximum taken over a regular n³ pattern of sub-samples
         (n chosen so that samples are no further apart than half the field's finest cell, at most
         MAX_SUBSAMPLES), so a thin surface anywhere in the voxel makes it occupied. A voxel with
-        occupancy ≥ 0.5 carries the class of its densest sub-sample, others are FREE; voxels whose
-        centre lies outside the modelled bounds are UNKNOWN (occupancy 0).
+        occupancy ≥ 0.5 carries the class of its densest sub-sample, others are FREE; its
+        ``probs`` are that sub-sample's class probabilities and ``confidence`` their
+        1 - entropy / log C.
+
+        UNKNOWN (occupancy, probs and confidence 0): voxels whose centre lies outside the modelled
+        bounds, and with ``visibility`` also every voxel no training camera observed, the map's
+        own occupied voxels being the surfaces (:func:`scenelabel.visibility.observed_voxels`;
+        docs/conventions.md, "Observed space"): an occupied voxel is observed when its centre lies
+        at most one voxel diagonal (√3 · voxel_size) plus one pixel footprint behind the first
+        occupied voxel along a camera's pixel ray, a transparent one only when its centre lies in
+        front of it. When ``bounds`` leave out part of the modelled bounds, the field's surfaces
+        between a camera and the map occlude too. The map's ``unknown_rule`` says which
+        rule was applied: "visibility", or "bounds" when visibility was off or the checkpoint
+        stores no training cameras.
 
         Args:
             voxel_size: voxel edge in world units (default: :meth:`default_voxel_size`).
             bounds: (2, 3) world box to cover (default: the modelled bounds).
             chunk: voxels per chunk edge.
+            visibility: mark voxels no training camera observed as UNKNOWN.
         """
         voxel_size = self.default_voxel_size() if voxel_size is None else float(voxel_size)
         if not (np.isfinite(voxel_size) and voxel_size > 0):
@@ -369,24 +441,46 @@ class SemanticField:
         n_sub = int(np.clip(np.ceil(voxel_size / (0.5 * self.meta["finest_cell"])), 1, MAX_SUBSAMPLES))
         offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
         offsets *= voxel_size  # [S, 3] world offsets from the voxel centre
+        n_classes = self.class_map.num_classes
         label = np.full(shape, UNKNOWN, dtype=np.int16)
         occupancy = np.zeros(shape, dtype=np.float32)
+        probs = np.zeros((*shape, n_classes), dtype=np.uint8)
+        confidence = np.zeros(shape, dtype=np.uint8)
         for sl in iter_chunks(shape, chunk):
             idx = np.stack(np.meshgrid(*[np.arange(s.start, s.stop) for s in sl], indexing="ij"), -1)
+            block = idx.shape[:3]
             centres = origin + voxel_size * idx.reshape(-1, 3)  # [V, 3]
-            inside = self._inside(centres)
+            inside = self._inside(centres)  # [V]
             pts = (centres[inside][:, None, :] + offsets[None]).reshape(-1, 3)
-            sig_n, probs = self._semantics_n(self.frame.to_internal(pts))
-            sig_n = sig_n.reshape(-1, len(offsets))
-            densest = sig_n.argmax(-1)
-            occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)
-            cls = probs.reshape(len(sig_n), len(offsets), -1)[np.arange(len(sig_n)), densest].argmax(-1)
+            sig_n, sub_probs = self._semantics_n(self.frame.to_internal(pts))
+            sig_n = sig_n.reshape(-1, len(offsets))  # [K, S], K voxels inside the bounds
+            densest = sig_n.argmax(-1)  # [K]
+            occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)  # [K]
+            p = sub_probs.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest]  # [K, C]
             block_label = np.full(len(centres), UNKNOWN, dtype=np.int16)
             block_occ = np.zeros(len(centres), dtype=np.float32)
-            block_label[inside] = np.where(occ >= OCCUPIED_THRESHOLD, self.class_map.ids_from_channels(cls), FREE)
+            block_probs = np.zeros((len(centres), n_classes), dtype=np.uint8)
+            block_conf = np.zeros(len(centres), dtype=np.uint8)
+            block_label[inside] = np.where(occ >= OCCUPIED_THRESHOLD, self.class_map.ids_from_channels(p.argmax(-1)), FREE)
             block_occ[inside] = occ
-            label[sl] = block_label.reshape(idx.shape[:3])
-            occupancy[sl] = block_occ.reshape(idx.shape[:3])
+            block_probs[inside] = uint8_from_unit(p)
+            block_conf[inside] = uint8_from_unit(confidence_from_probs(p))
+            label[sl] = block_label.reshape(block)
+            occupancy[sl] = block_occ.reshape(block)
+            probs[sl] = block_probs.reshape(*block, n_classes)
+            confidence[sl] = block_conf.reshape(block)
+        cameras = self.training_cameras() if visibility else None
+        if cameras is not None:
+            small = scaled_cameras(cameras, DEPTH_MAP_WIDTH)
+            lo = origin - voxel_size / 2.0
+            hi = lo + voxel_size * np.asarray(shape)
+            covers_bounds = bool(np.all(lo <= self.aabb[0]) and np.all(hi >= self.aabb[1]))
+            occluders = None if covers_bounds else self._occluders_outside(small, lo, hi)
+            unseen = ~observed_voxels(label >= 0, origin, voxel_size, small, occluders, chunk)  # [nx, ny, nz]
+            label[unseen] = UNKNOWN
+            occupancy[unseen] = 0.0
+            probs[unseen] = 0
+            confidence[unseen] = 0
         colors = self.meta.get("class_colors") or {}
         return OccupancyMap(
             label=label,
@@ -398,4 +492,33 @@ class SemanticField:
             class_colors={i: tuple(colors[i]) for i in self.class_map.ids.tolist() if i in colors} or None,
             frame_id=self.meta.get("frame_id", "world"),
             occupancy_threshold=OCCUPIED_THRESHOLD,
+            probs=probs,
+            confidence=confidence,
+            unknown_rule="visibility" if cameras is not None else "bounds",
         )
+
+    def _occluders_outside(self, cameras: Cameras, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+        """The field's surfaces that a map covering only the box [lo, hi] does not hold.
+
+        Per camera, the distance along each pixel ray to the first point the field holds occupied
+        (:meth:`_first_occupied_t_n`) *before the ray enters the box* (surfaces past the box hide
+        nothing in it), within the camera's near / far; ``inf`` where there is none.
+
+        Args:
+            cameras: n cameras (pinholes, world frame).
+            lo, hi: [3] the map's box.
+        Returns:
+            n arrays [h_i, w_i] float64, world units.
+        """
+        rays = [rays_from_cameras(cameras, i) for i in range(len(cameras))]  # n x ([h w, 3], [h w, 3])
+        counts = [len(o) for o, _ in rays]
+        origins = np.concatenate([o for o, _ in rays])  # [R, 3]
+        directions = np.concatenate([d for _, d in rays])
+        near = np.repeat(np.where(np.isfinite(cameras.near), cameras.near, 0.0), counts)  # [R]
+        far = np.repeat(np.where(np.isfinite(cameras.far), cameras.far, np.inf), counts)
+        t_enter, t_exit = ray_box_distances(origins, directions, lo, hi)
+        far = np.where(t_exit >= np.maximum(t_enter, 0.0), np.minimum(far, t_enter), near)  # a miss: nothing to march
+        scale = self.frame.scale
+        depth = self._first_occupied_t_n(self.frame.to_internal(origins), directions, near * scale, far * scale) / scale
+        parts = np.split(depth, np.cumsum(counts)[:-1])
+        return [d.reshape(int(h), int(w)) for d, h, w in zip(parts, cameras.height, cameras.width)]

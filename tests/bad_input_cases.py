@@ -141,6 +141,33 @@ def _output_not_writable(tmp):
     return build_args(scene, "--out", str(blocker / "out"))
 
 
+def small_map(tmp: Path) -> Path:
+    """A 4 x 4 x 4 map .zarr: a floor layer, FREE above."""
+    from scenelabel import FREE, OccupancyMap
+
+    label = np.full((4, 4, 4), FREE, np.int16)
+    label[:, :, 0] = 1
+    occupancy = (label >= 0).astype(np.float32)
+    return OccupancyMap(label, occupancy, 0.1, [0.0, 0.0, 0.0], {1: "floor"}, 0.1).to_zarr(tmp / "map.zarr")
+
+
+def _export_unknown_source(tmp):
+    (tmp / "photos").mkdir()
+    return ["export", str(tmp / "photos"), str(tmp / "out.zarr")]
+
+
+def _export_voxel_size_of_a_map(tmp):
+    return ["export", str(small_map(tmp)), str(tmp / "out.zarr"), "--voxel-size", "0.2"]
+
+
+def _export_ply_suffix(tmp):
+    return ["export", str(small_map(tmp)), str(tmp / "points.txt"), "--format", "ply"]
+
+
+def _export_empty_band(tmp):
+    return ["export", str(small_map(tmp)), str(tmp / "plan"), "--format", "nav2", "--z-min", "5", "--z-max", "6"]
+
+
 CASES = [
     Case("scene folder missing", _missing_folder, ("no_such_scene",)),
     Case("images/ empty", _empty_images, ("0 of 8 frames have an image file",)),
@@ -157,4 +184,8 @@ CASES = [
     Case("unknown config key", _unknown_config_key, ("stepz",)),
     Case("checkpoint from an incompatible version", _incompatible_checkpoint, ("checkpoint.pt", "not supported")),
     Case("output path not writable", _output_not_writable, ("a_file",)),
+    Case("export input neither a build nor a map", _export_unknown_source, ("photos", "neither a build folder")),
+    Case("export --voxel-size of a map", _export_voxel_size_of_a_map, ("map.zarr", "--voxel-size")),
+    Case("export --format ply to a non-.ply file", _export_ply_suffix, ("points.txt", ".ply")),
+    Case("export --format nav2 with an empty height band", _export_empty_band, ("no voxel layer",)),
 ]

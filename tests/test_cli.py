@@ -3,27 +3,88 @@
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
+from scenelabel import FREE, OccupancyMap
 from scenelabel.synthetic import write_toy_scene
 
 
 def run_cli(*args, cwd=None):
     return subprocess.run(
-        [sys.executable, "-m", "scenelabel", *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=300
+        [sys.executable, "-m", "scenelabel", *map(str, args)], check=False, capture_output=True, text=True, cwd=cwd, timeout=300
     )
 
 
+@pytest.fixture(scope="module")
+def small_build(tmp_path_factory):
+    """A 20-step build of a small toy scene: (the build's CompletedProcess, its folder)."""
+    root = tmp_path_factory.mktemp("cli")
+    scene = write_toy_scene(root / "scene", n_train=7, n_test=1, width=24, height=18)
+    out = root / "out"
+    return run_cli("build", scene, "--out", out, "--steps", "20", "--preset", "quick", "--quiet"), out
+
+
 @pytest.fixture()
-def small_scene(tmp_path):
-    return write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18)
+def box_map(tmp_path):
+    """A hand-made map .zarr: a floor layer and one box."""
+    label = np.full((8, 6, 5), FREE, np.int16)
+    label[:, :, 0] = 1
+    label[2:4, 2:4, 1:4] = 3
+    occupancy = np.where(label >= 0, 1.0, 0.0).astype(np.float32)
+    occ = OccupancyMap(label, occupancy, 0.1, [0.0, 0.0, 0.0], {1: "floor", 3: "box", 5: "chair"}, 0.1)
+    return occ.to_zarr(tmp_path / "box.zarr")
 
 
-def test_build_and_export_smoke(small_scene, tmp_path):
-    out = tmp_path / "out"
-    proc = run_cli("build", small_scene, "--out", out, "--steps", "20", "--preset", "quick", "--quiet")
+def test_build_and_export_smoke(small_build, tmp_path):
+    proc, out = small_build
     assert proc.returncode == 0, proc.stderr
     assert "held-out" in proc.stdout and "psnr=" in proc.stdout
     proc = run_cli("export", out, tmp_path / "m.zarr", "--zarr-format", "2")
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "m.zarr" / ".zgroup").exists()
+
+
+def test_export_every_format_from_a_build(small_build, tmp_path):
+    _, out = small_build
+    for fmt, target, files in (
+        ("zarr", "m.zarr", ["m.zarr/zarr.json"]),
+        ("ply", "points.ply", ["points.ply"]),
+        ("mesh", "meshes", ["meshes"]),
+        ("nav2", "plan", ["plan.pgm", "plan.yaml", "plan_labels.png"]),
+    ):
+        proc = run_cli("export", out, tmp_path / target, "--format", fmt, "--voxel-size", "0.2")
+        assert proc.returncode == 0, (fmt, proc.stderr)
+        assert proc.stdout.startswith("wrote"), proc.stdout
+        for name in files:
+            assert (tmp_path / name).exists(), (fmt, name)
+
+
+def test_export_every_format_from_a_map(box_map, tmp_path):
+    proc = run_cli("export", box_map, tmp_path / "points.ply", "--format", "ply")
+    assert proc.returncode == 0, proc.stderr
+    assert b"element vertex 60" in (tmp_path / "points.ply").read_bytes()  # 48 floor + 12 box voxels
+    proc = run_cli("export", box_map, tmp_path / "meshes", "--format", "mesh")
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in (tmp_path / "meshes").iterdir()) == ["class_1_floor.ply", "class_3_box.ply"]
+    proc = run_cli("export", box_map, tmp_path / "nav" / "plan", "--format", "nav2", "--robot-height", "0.3")
+    assert proc.returncode == 2 and "does not exist" in proc.stderr  # the folder nav/ is missing
+    proc = run_cli("export", box_map, tmp_path / "plan", "--format", "nav2", "--robot-height", "0.3")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "plan.pgm").read_bytes().startswith(b"P5\n8 6\n255\n")
+    proc = run_cli("export", box_map, tmp_path / "again.zarr")  # zarr is the default format
+    assert proc.returncode == 0 and (tmp_path / "again.zarr" / "zarr.json").exists()
+
+
+def test_export_user_errors_exit_2(box_map, tmp_path):
+    proc = run_cli("export", box_map, tmp_path / "x", "--format", "obj")
+    assert proc.returncode == 2 and "invalid choice: 'obj'" in proc.stderr
+    proc = run_cli("export", tmp_path / "nothing", tmp_path / "x.zarr")
+    assert proc.returncode == 2 and "neither a build folder" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    proc = run_cli("export", box_map, tmp_path / "x.zarr", "--voxel-size", "0.2")
+    assert proc.returncode == 2 and "--voxel-size applies to a build folder" in proc.stderr
+    proc = run_cli("export", box_map, tmp_path / "points.txt", "--format", "ply")
+    assert proc.returncode == 2 and ".ply" in proc.stderr
+    proc = run_cli("export", box_map, tmp_path / "plan", "--format", "nav2", "--z-min", "0.3", "--z-max", "0.1")
+    assert proc.returncode == 2 and "z_min < z_max" in proc.stderr

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 import zarr
+from conftest import TOY_BUILD_STEPS
 
 from scenelabel import FREE, UNKNOWN, OccupancyMap, SemanticField, build, preset, write_toy_scene
 from scenelabel.maps import validate_attributes
@@ -12,16 +13,7 @@ from scenelabel.synthetic import TOY_BOXES
 
 pytestmark = pytest.mark.slow
 
-E2E_STEPS = 500  # the quick preset; enough for the toy targets below (see docs/benchmarks.md for time)
-
-
-@pytest.fixture(scope="module")
-def toy_build(tmp_path_factory):
-    root = tmp_path_factory.mktemp("toy")
-    scene = write_toy_scene(root / "scene")
-    config = preset("quick", {"train": {"steps": E2E_STEPS}})
-    result = build(scene, root / "out", config, progress=False)
-    return result
+# toy_build (tests/conftest.py): the toy scene built once per session with the quick preset.
 
 
 def box_by_class(class_id):
@@ -46,7 +38,7 @@ def test_outputs_written(toy_build):
     renders = sorted((out / "renders").glob("*.png"))
     assert len(renders) == 4
     config = json.loads((out / "config.json").read_text())
-    assert config["train"]["steps"] == E2E_STEPS
+    assert config["train"]["steps"] == TOY_BUILD_STEPS
 
 
 def test_only_present_classes_get_channels(toy_build):

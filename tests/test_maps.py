@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -259,7 +260,7 @@ def test_round_trip(tmp_path, zarr_format):
     assert back == m
     group = zarr.open_group(str(out), mode="r")
     assert group.metadata.zarr_format == zarr_format
-    assert group.attrs.asdict() == m.attributes()
+    assert group.attrs.asdict() == {**m.attributes(), "level": 0, "n_levels": 1, **maps.ngff_multiscales([m], zarr_format)}
     for name in ("label", "occupancy"):
         array = group[name]
         assert array.chunks == (2, 3, 4)
@@ -336,7 +337,10 @@ def test_schema_is_valid_and_documented():
     jsonschema.Draft202012Validator.check_schema(schema)
     assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
     assert schema["additionalProperties"] is True
-    assert set(schema["required"]) == set(make_map().attributes())
+    # every attribute a map has is required (the newer ones from format_version 2 on)
+    required_v2 = schema["allOf"][0]["then"]["required"]
+    assert set(schema["required"]) | set(required_v2) == set(make_map().attributes())
+    assert not set(schema["required"]) & set(required_v2)
     for name, prop in schema["properties"].items():
         assert prop.get("description"), f"{name} has no description"
 
@@ -507,3 +511,322 @@ def test_docs_planner_snippet_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(snippet, "docs/formats.md", "exec"), namespace)
     assert namespace["ijk"].tolist() == [1, 2, 3] and namespace["label"] == 7
+
+
+# ---------------------------------------------------------------------------- probs, confidence
+
+
+def random_probs(label: np.ndarray, n_classes: int = len(CLASSES), seed: int = 2) -> np.ndarray:
+    """[*label.shape, C] float class distributions, 0 where UNKNOWN."""
+    p = np.random.default_rng(seed).random(label.shape + (n_classes,)) ** 3
+    p /= p.sum(-1, keepdims=True)
+    p[label == UNKNOWN] = 0.0
+    return p
+
+
+def make_map_with_probs(**overrides) -> OccupancyMap:
+    base = make_map()
+    probs = random_probs(base.label)
+    return make_map(probs=probs, confidence=maps.confidence_from_probs(probs), unknown_rule="visibility", **overrides)
+
+
+def test_quantisation_round_trip_within_one_step():
+    values = np.concatenate([np.random.default_rng(0).random(10_000), [0.0, 1.0, 0.5, 1 / 255, 254.5 / 255]])
+    codes = maps.uint8_from_unit(values)
+    assert codes.dtype == np.uint8
+    back = maps.unit_from_uint8(codes)
+    assert back.dtype == np.float32
+    assert np.max(np.abs(back - values)) <= 0.5 / 255 + 1e-7  # within half a step, so within 1/255
+    assert codes[-5:-3].tolist() == [0, 255]
+    np.testing.assert_array_equal(maps.uint8_from_unit([-0.5, 2.0, np.nan]), [0, 255, 0])  # clipped
+
+
+def test_confidence_one_hot_uniform_and_edge_cases():
+    c = maps.confidence_from_probs
+    np.testing.assert_allclose(c(np.eye(4)), 1.0)
+    np.testing.assert_allclose(c(np.full((3, 5), 0.2)), 0.0, atol=1e-12)
+    np.testing.assert_allclose(c([[0.5, 0.5, 0.0, 0.0]]), [1.0 - math.log(2) / math.log(4)])
+    np.testing.assert_allclose(c([[2.0, 0.0]]), [1.0])  # rows are normalised first
+    np.testing.assert_array_equal(c(np.zeros((2, 3))), [0.0, 0.0])  # UNKNOWN rows
+    np.testing.assert_array_equal(c([[1.0], [0.3], [0.0]]), [1.0, 1.0, 0.0])  # C = 1
+    assert c(np.zeros((2, 3, 4, 3))).shape == (2, 3, 4)
+
+
+def test_probs_and_confidence_are_quantised_and_checked():
+    m = make_map_with_probs()
+    assert m.probs.dtype == np.uint8 and m.probs.shape == SHAPE + (3,)
+    assert m.confidence.dtype == np.uint8 and m.confidence.shape == SHAPE
+    assert np.all(m.probs[m.label == UNKNOWN] == 0) and np.all(m.confidence[m.label == UNKNOWN] == 0)
+    np.testing.assert_array_equal(m.class_ids, [0, 3, 7])
+    with pytest.raises(ValueError):
+        m.probs[0, 0, 0, 0] = 1  # frozen
+    # uint8 codes are taken as they are
+    assert make_map(probs=m.probs, confidence=m.confidence, unknown_rule="visibility") == m
+    bad_unknown = m.probs.copy()
+    bad_unknown[tuple(np.argwhere(m.label == UNKNOWN)[0])] = 9
+    for overrides, field in [
+        ({"probs": np.zeros(SHAPE + (2,), np.uint8)}, "probs"),  # C differs from classes
+        ({"probs": bad_unknown}, "probs"),
+        ({"probs": np.full(SHAPE + (3,), 1.5)}, "probs"),
+        ({"probs": np.zeros(SHAPE + (3,), np.int32)}, "probs"),
+        ({"confidence": np.zeros((4, 5), np.uint8)}, "confidence"),
+        ({"unknown_rule": "guess"}, "unknown_rule"),
+    ]:
+        with pytest.raises(InputError) as info:
+            make_map(**overrides)
+        assert info.value.field == field
+
+
+# ---------------------------------------------------------------------------- pyramid
+
+
+def grid_2x2x2(children: list[int], occupancy=None, probs=None, classes=None) -> OccupancyMap:
+    """A 2x2x2 map whose 8 voxels are ``children`` (C order), to pool into one coarse voxel."""
+    label = np.array(children, np.int16).reshape(2, 2, 2)
+    occ = np.where(label >= 0, 0.9, np.where(label == FREE, 0.1, 0.0)) if occupancy is None else occupancy
+    return OccupancyMap(
+        label=label, occupancy=np.asarray(occ, np.float32).reshape(2, 2, 2), voxel_size=0.5, origin=(0.25, 0.25, 0.25),
+        classes=classes or {3: "chair", 7: "table"}, occupancy_delta=0.5,
+        probs=None if probs is None else np.asarray(probs).reshape(2, 2, 2, -1),
+    )
+
+
+F, U = FREE, UNKNOWN
+
+
+@pytest.mark.parametrize(
+    "children, expected",
+    [
+        ([F] * 8, F),                    # all FREE -> FREE
+        ([U] * 8, U),                    # all UNKNOWN -> UNKNOWN
+        ([F] * 7 + [U], U),              # a FREE / UNKNOWN mix is UNKNOWN (conservative)
+        ([U] * 7 + [F], U),
+        ([F] * 7 + [3], 3),              # one occupied child keeps the coarse voxel occupied
+        ([U] * 7 + [7], 7),              # even among unknown ones
+        ([F, U, F, U, 3, F, U, F], 3),
+    ],
+)
+def test_pool_labels_rules(children, expected):
+    coarse = grid_2x2x2(children).downsample(2)
+    assert coarse.shape == (1, 1, 1)
+    assert int(coarse.label[0, 0, 0]) == expected
+    # occupancy is the children's max, and 0 where the coarse voxel is UNKNOWN
+    want = 0.0 if expected == U else max(0.9 if c >= 0 else 0.1 if c == F else 0.0 for c in children)
+    assert coarse.occupancy[0, 0, 0] == pytest.approx(want)
+
+
+def test_thin_obstacle_survives_every_level():
+    label = np.full((16, 16, 16), FREE, np.int16)
+    label[5, :, 9] = 7  # a one-voxel-thick pole along y
+    occupancy = np.where(label >= 0, 0.8, 0.05).astype(np.float32)
+    m = OccupancyMap(label, occupancy, 0.05, (0, 0, 0), {7: "lamp"}, 0.05)
+    for level, coarse in enumerate(m.pyramid(5)):
+        assert coarse.shape == (16 >> level,) * 3
+        assert coarse.voxel_size == pytest.approx(0.05 * 2**level)
+        np.testing.assert_allclose(coarse.origin_corner, m.origin_corner)
+        # the pole is still there: the coarse voxel containing its points is occupied by class 7
+        pts = m.world_from_index(np.array([[5, j, 9] for j in range(16)]))
+        assert np.all(coarse.label_at(pts) == 7), level
+        assert (coarse.label == 7).sum() == (16 >> level)  # and nothing else became the pole
+        assert np.all(coarse.occupancy[coarse.label == 7] == np.float32(0.8))
+    assert m.pyramid(5)[4].label.tolist() == [[[7]]]
+
+
+def test_pooled_class_is_argmax_of_summed_occupied_probs():
+    # two occupied children: chair (0.9 / 0.1) and table (0.45 / 0.55): summed 1.35 / 0.65 -> chair.
+    # A FREE child's probs (all table) do not count when any child is occupied.
+    probs = np.zeros((8, 2))
+    children = [3, 7, F, F, F, F, F, F]
+    probs[0], probs[1] = [0.9, 0.1], [0.45, 0.55]
+    probs[2:] = [0.0, 1.0]
+    m = grid_2x2x2(children, occupancy=[0.6, 0.95, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1], probs=probs)
+    coarse = m.downsample()
+    assert int(coarse.label[0, 0, 0]) == 3  # although the table child is the denser one
+    np.testing.assert_allclose(maps.unit_from_uint8(coarse.probs[0, 0, 0]), [0.675, 0.325], atol=1 / 255)
+    expected_conf = maps.confidence_from_probs([0.675, 0.325])
+    assert abs(int(coarse.confidence[0, 0, 0]) / 255 - expected_conf) <= 1 / 255
+    # without probabilities: the densest occupied child decides
+    assert int(grid_2x2x2(children, occupancy=[0.6, 0.95, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1]).downsample().label[0, 0, 0]) == 7
+    # all FREE: the mean of the children's distributions; UNKNOWN: zeros
+    free = grid_2x2x2([F] * 8, probs=np.tile([0.25, 0.75], (8, 1))).downsample()
+    np.testing.assert_allclose(maps.unit_from_uint8(free.probs[0, 0, 0]), [0.25, 0.75], atol=1 / 255)
+    mixed = grid_2x2x2([F] * 7 + [U], probs=np.vstack([np.tile([0.25, 0.75], (7, 1)), [[0, 0]]])).downsample()
+    assert mixed.probs[0, 0, 0].tolist() == [0, 0] and int(mixed.confidence[0, 0, 0]) == 0
+
+
+def test_odd_shapes_pad_with_unknown():
+    label = np.full((3, 2, 2), FREE, np.int16)
+    m = OccupancyMap(label, np.zeros(label.shape, np.float32), 1.0, (0, 0, 0), {1: "a"}, 1.0)
+    coarse = m.downsample(2)
+    assert coarse.shape == (2, 1, 1)
+    # the second coarse voxel has 4 FREE children and 4 beyond the grid: UNKNOWN, not FREE
+    assert coarse.label[:, 0, 0].tolist() == [FREE, UNKNOWN]
+    np.testing.assert_allclose(coarse.origin, [0.5, 0.5, 0.5])  # min corner kept at -0.5
+    lone = label.copy()
+    lone[2, 1, 1] = 1
+    assert OccupancyMap(lone, (lone >= 0).astype(np.float32), 1.0, (0, 0, 0), {1: "a"}, 1.0).downsample().label[1, 0, 0] == 1
+
+
+def test_downsample_factors_and_default_levels():
+    m = make_map_with_probs()
+    assert m.downsample(1) is m
+    assert m.downsample(4).shape == (1, 2, 2)
+    assert [lvl.shape for lvl in m.pyramid(3)] == [SHAPE, (2, 3, 3), (1, 2, 2)]
+    assert m.pyramid(3)[2] == m.downsample(4)  # level L pools 2^L children per axis at once
+    assert maps.default_levels(SHAPE) == 1
+    assert maps.default_levels((124, 124, 54)) == 4  # 0.05 m room: 0.05, 0.1, 0.2, 0.4 m
+    assert maps.default_levels((4000, 1, 1)) == maps.MAX_LEVELS
+    for bad in (0, 2.0, True):
+        with pytest.raises(InputError, match="factor"):
+            m.downsample(bad)
+    with pytest.raises(InputError, match="levels"):
+        m.pyramid(0)
+
+
+# ---------------------------------------------------------------------------- zarr: levels, probs, OME-NGFF
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_round_trip_with_probs_and_levels(tmp_path, zarr_format):
+    m = make_map_with_probs()
+    path = m.to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format, chunks=(2, 2, 2), levels=3)
+    back = OccupancyMap.from_zarr(path)
+    assert back == m and back.unknown_rule == "visibility"
+    np.testing.assert_array_equal(back.probs, m.probs)
+    np.testing.assert_array_equal(back.confidence, m.confidence)
+    for level in (1, 2):
+        assert OccupancyMap.from_zarr(path, level=level) == m.downsample(2**level)
+        # a level's group is a complete map on its own
+        assert OccupancyMap.from_zarr(path / "levels" / str(level)) == m.downsample(2**level)
+    with pytest.raises(InputError, match="level") as info:
+        OccupancyMap.from_zarr(path, level=3)
+    assert info.value.field == "level"
+    with pytest.raises(InputError, match="level"):
+        OccupancyMap.from_zarr(path, level=-1)
+    # level 0 keeps its v1 paths; the arrays carry dimension names and CF attributes
+    group = zarr.open_group(str(path), mode="r")
+    assert set(group.array_keys()) == {"label", "occupancy", "probs", "confidence"}
+    assert group["probs"].shape == SHAPE + (3,) and group["probs"].chunks == (2, 2, 2, 3)
+    label_attrs = group["label"].attrs
+    assert label_attrs["flag_values"] == [-2, -1, 0, 3, 7]
+    assert label_attrs["flag_meanings"] == "unknown free floor chair table"
+    assert group["probs"].attrs["class_ids"] == [0, 3, 7]
+    assert group["probs"].attrs["scale_factor"] == pytest.approx(1 / 255)
+    dims = ["x", "y", "z", "class"]
+    if zarr_format == 3:
+        assert list(group["probs"].metadata.dimension_names) == dims
+    else:
+        assert group["probs"].attrs["_ARRAY_DIMENSIONS"] == dims
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.zarr"]
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_ome_ngff_multiscales_values(tmp_path, zarr_format):
+    m = make_map_with_probs()
+    path = m.to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format, levels=3)
+    attrs = zarr.open_group(str(path), mode="r").attrs.asdict()
+    if zarr_format == 3:
+        assert attrs["ome"]["version"] == "0.5" and "multiscales" not in attrs
+        multiscales = attrs["ome"]["multiscales"]
+    else:
+        assert "ome" not in attrs
+        multiscales = attrs["multiscales"]
+        assert all(entry["version"] == "0.4" for entry in multiscales)
+    assert [entry["name"] for entry in multiscales] == ["label", "occupancy", "confidence"]
+    group = zarr.open_group(str(path), mode="r")
+    for entry in multiscales:
+        assert entry["axes"] == [{"name": n, "type": "space", "unit": "meter"} for n in "xyz"]
+        assert len(entry["datasets"]) == 3
+        for level, dataset in enumerate(entry["datasets"]):
+            scale, translation = dataset["coordinateTransformations"]
+            assert scale["type"] == "scale" and translation["type"] == "translation"
+            np.testing.assert_allclose(scale["scale"], [VOXEL * 2**level] * 3)
+            # the centre of voxel [0, 0, 0] of that level: the min corner plus half a coarse voxel
+            np.testing.assert_allclose(translation["translation"], m.origin_corner + VOXEL * 2**level / 2)
+            array = group[dataset["path"]]
+            assert array.shape == m.downsample(2**level).shape
+            assert dataset["path"] == (entry["name"] if level == 0 else f"levels/{level}/{entry['name']}")
+    # non-metric maps leave the unit out
+    plain = make_map(units="input").to_zarr(tmp_path / "plain.zarr", zarr_format=zarr_format)
+    plain_attrs = zarr.open_group(str(plain), mode="r").attrs.asdict()
+    entries = plain_attrs["ome"]["multiscales"] if zarr_format == 3 else plain_attrs["multiscales"]
+    assert all("unit" not in axis for axis in entries[0]["axes"])
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_written_maps_validate_against_schema(tmp_path, zarr_format):
+    path = make_map_with_probs().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format, levels=2)
+    group = zarr.open_group(str(path), mode="r")
+    for attrs in (group.attrs.asdict(), group["levels/1"].attrs.asdict()):
+        validate_attributes(attrs)
+        assert attrs["format_version"] == maps.FORMAT_VERSION == 2
+    assert group.attrs["n_levels"] == 2 and group.attrs["level"] == 0 and group["levels/1"].attrs["level"] == 1
+    attrs = group.attrs.asdict()
+    for name in ("occupancy_encoding", "unknown_rule", "T_world_from_grid"):
+        with pytest.raises(InputError, match=name):
+            validate_attributes({k: v for k, v in attrs.items() if k != name})
+    with pytest.raises(InputError, match="unknown_rule"):
+        validate_attributes({**attrs, "unknown_rule": "guess"})
+    with pytest.raises(InputError, match="T_world_from_grid"):
+        validate_attributes({**attrs, "T_world_from_grid": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]})
+    with pytest.raises(InputError, match="ome"):
+        validate_attributes({**attrs, "ome": {"multiscales": []}})
+    # a version-1 map needs none of the version-2 attributes
+    v1 = {k: v for k, v in attrs.items() if k in V1_ATTRIBUTES}
+    validate_attributes({**v1, "format_version": 1})
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_from_zarr_rejects_inconsistent_transform(tmp_path, zarr_format):
+    path = make_map().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format)
+    bad = np.eye(4).tolist()
+    _edit_attrs(path, zarr_format, lambda a: a.update(T_world_from_grid=bad))
+    with pytest.raises(InputError, match="T_world_from_grid"):
+        OccupancyMap.from_zarr(path)
+
+
+V1_ATTRIBUTES = (
+    "format", "format_version", "scenelabel_version", "voxel_size", "origin", "origin_corner", "index_order",
+    "units", "frame_id", "free_label", "unknown_label", "classes", "occupancy_threshold", "occupancy_delta",
+    "scale_source",
+)
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_reads_version_1_maps(tmp_path, zarr_format):
+    """A map as scenelabel's format 1 wrote it: two arrays, the v1 attributes, no levels."""
+    m = make_map()
+    group = zarr.open_group(str(tmp_path / "old.zarr"), mode="w", zarr_format=zarr_format)
+    for name, data, fill in (("label", m.label, UNKNOWN), ("occupancy", m.occupancy, 0.0)):
+        group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=(2, 2, 2), fill_value=fill)[...] = data
+    group.attrs.update({**{k: v for k, v in m.attributes().items() if k in V1_ATTRIBUTES}, "format_version": 1})
+    back = OccupancyMap.from_zarr(tmp_path / "old.zarr")
+    assert back == m and back.unknown_rule == "bounds" and back.probs is None and back.confidence is None
+    with pytest.raises(InputError, match="level"):
+        OccupancyMap.from_zarr(tmp_path / "old.zarr", level=1)
+
+
+@pytest.mark.parametrize("zarr_format", [3, 2])
+def test_plain_zarr_reader_levels_transform_and_probs(tmp_path, zarr_format):
+    """A planner with zarr + numpy only: T_world_from_grid, a coarse level, dequantised probs."""
+    path = make_map_with_probs().to_zarr(tmp_path / "map.zarr", zarr_format=zarr_format, levels=2)
+
+    g = zarr.open_group(str(path), mode="r")
+    T = np.array(g.attrs["T_world_from_grid"])
+    assert T.shape == (4, 4)
+    centre = (T @ np.array([1, 2, 3, 1.0]))[:3]
+    np.testing.assert_allclose(centre, [1.5, -1.0, 1.75])  # hand-computed centre of voxel [1, 2, 3]
+    ijk = np.floor(np.linalg.solve(T, np.array([1.7, -0.8, 1.95, 1.0]))[:3] + 0.5).astype(int)
+    assert ijk.tolist() == [1, 2, 3] and int(g["label"][tuple(ijk)]) == 7
+    # class probabilities of that voxel, by class id
+    probs = g["probs"][1, 2, 3] * g["probs"].attrs["scale_factor"]
+    by_id = dict(zip(g["probs"].attrs["class_ids"], probs))
+    assert set(by_id) == {0, 3, 7} and abs(sum(by_id.values()) - 1.0) < 3 / 255
+    # level 1: its own transform
+    level = g["levels/1"]
+    T1 = np.array(level.attrs["T_world_from_grid"])
+    np.testing.assert_allclose(T1[:3, :3], np.eye(3) * 2 * VOXEL)
+    np.testing.assert_allclose(T1[:3, 3], np.array(g.attrs["origin_corner"]) + VOXEL)
+    i1, j1, k1 = np.floor(np.linalg.solve(T1, np.array([1.7, -0.8, 1.95, 1.0]))[:3] + 0.5).astype(int)
+    assert (i1, j1, k1) == (0, 1, 1)  # children [0..1, 2..3, 2..3]
+    assert int(level["label"][i1, j1, k1]) >= 0  # occupied, since its child [1, 2, 3] is

@@ -8,6 +8,9 @@ import torch
 
 from scenelabel import FREE, UNKNOWN, InputError, SemanticField, build, preset, write_toy_scene
 from scenelabel.errors import CheckpointError
+from scenelabel.maps import confidence_from_probs, unit_from_uint8
+from scenelabel.semantic_field import TRAIN_CAMERAS_KEY
+from scenelabel.visibility import cameras_to_dict, observed_voxels, project_points, scaled_cameras
 
 
 @pytest.fixture(scope="module")
@@ -159,3 +162,86 @@ def resident_bytes() -> int:
 
     with open(f"/proc/{os.getpid()}/statm") as f:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+# ---------------------------------------------------------------------------- observed space (maps)
+
+MAP_BOX = np.array([[-1.0, -1.0, -0.15], [1.0, 1.0, 0.7]])
+
+
+def field_with_meta(field, **changes) -> SemanticField:
+    """The same trained field with checkpoint entries replaced (None removes one)."""
+    meta = {k: v for k, v in {**field.meta, **changes}.items() if v is not None}
+    return SemanticField(field.model, field.occupancy, field.frame, field.class_map, meta)
+
+
+def voxel_centres(m) -> np.ndarray:
+    """[n_voxels, 3] world centres in C order of the map's arrays."""
+    return m.world_from_index(np.stack(np.meshgrid(*[np.arange(n) for n in m.shape], indexing="ij"), -1).reshape(-1, 3))
+
+
+def test_build_stores_training_cameras(field):
+    cams = field.training_cameras()
+    assert len(cams) == 14 and cams.c2w.shape == (14, 4, 4)
+    assert cams.width.tolist() == [48] * 14 and np.all(np.isfinite(cams.far))
+    np.testing.assert_allclose(cams.c2w[:, 3], [[0, 0, 0, 1]] * 14)
+
+
+def test_occupancy_map_visibility_only_adds_unknown(field):
+    vis = field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX)
+    plain = field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX, visibility=False)
+    assert vis.unknown_rule == "visibility" and plain.unknown_rule == "bounds"
+    known = vis.label != UNKNOWN
+    assert known.any() and (~known).any() and np.all(plain.label != UNKNOWN)
+    np.testing.assert_array_equal(vis.label[known], plain.label[known])
+    np.testing.assert_array_equal(vis.occupancy[known], plain.occupancy[known])
+    # probs and confidence: per class id, quantised, 0 where UNKNOWN
+    assert vis.probs.shape == vis.shape + (3,) and vis.probs.dtype == np.uint8
+    np.testing.assert_array_equal(vis.class_ids, field.class_ids)
+    rows = unit_from_uint8(vis.probs[known])
+    np.testing.assert_allclose(rows.sum(-1), 1.0, atol=3 / 255)
+    # the confidence came from the unquantised probabilities; entropy is steep near 0, so a code
+    # step of a small probability moves it by up to ~0.02
+    np.testing.assert_allclose(unit_from_uint8(vis.confidence[known]), confidence_from_probs(rows), atol=0.05)
+    assert np.all(vis.probs[~known] == 0) and np.all(vis.confidence[~known] == 0)
+
+
+def test_occupancy_map_unknown_outside_the_only_camera(field):
+    cams = field.training_cameras()
+    one = field_with_meta(field, **{TRAIN_CAMERAS_KEY: cameras_to_dict(cams[[0]])})
+    m = one.occupancy_map(voxel_size=0.1)
+    plain = one.occupancy_map(voxel_size=0.1, visibility=False)
+    centres = voxel_centres(m)
+    cam = scaled_cameras(cams[[0]])
+    uv, z, dist = project_points(centres, cam.c2w[0], cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0])
+    with np.errstate(invalid="ignore"):
+        in_frustum = (
+            (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width[0]) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height[0])
+            & (dist >= cam.near[0]) & (dist <= cam.far[0])
+        )
+    label = m.label.reshape(-1)
+    assert in_frustum.any() and (~in_frustum).any()
+    assert np.all(label[~in_frustum] == UNKNOWN)
+    assert np.any(label[in_frustum] == FREE)
+    # exactly observed_voxels on the map's own occupied voxels (the map covers all the bounds)
+    expected = observed_voxels(plain.label >= 0, plain.origin, plain.voxel_size, cam)
+    np.testing.assert_array_equal(m.label != UNKNOWN, expected)
+    np.testing.assert_array_equal(m.label[expected], plain.label[expected])
+
+
+def test_cropped_map_is_occluded_by_surfaces_outside_it(field):
+    """A map of the slab under the floor only: the floor, outside the map, still hides it."""
+    crop = np.array([[-1.0, -1.0, -0.15], [1.0, 1.0, -0.05]])
+    m = field.occupancy_map(voxel_size=0.05, bounds=crop)
+    plain = field.occupancy_map(voxel_size=0.05, bounds=crop, visibility=False)
+    without_floor = observed_voxels(plain.label >= 0, plain.origin, plain.voxel_size, scaled_cameras(field.training_cameras()))
+    assert without_floor.mean() > 0.5  # the map alone has no floor to hide the slab
+    assert np.mean(m.label == UNKNOWN) >= 0.9  # the short-trained floor has a few holes
+
+
+def test_old_checkpoint_falls_back_to_bounds(field):
+    old = field_with_meta(field, **{TRAIN_CAMERAS_KEY: None})
+    assert old.training_cameras() is None
+    m = old.occupancy_map(voxel_size=0.1, bounds=MAP_BOX)
+    assert m.unknown_rule == "bounds" and m.attributes()["unknown_rule"] == "bounds"
+    assert m == field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX, visibility=False)

@@ -18,6 +18,16 @@ if ! .venv/bin/python -c "import torch" 2>/dev/null; then
     .venv/bin/python -m pip install -q "$TORCH_SPEC"
   fi
 fi
+# open3d (a test dependency: the tests read exported PLY files with it) needs libusb-1.0 at import.
+if ! { ldconfig -p || /sbin/ldconfig -p; } 2>/dev/null | grep -q "libusb-1.0.so.0"; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "setup: installing libusb-1.0-0 (Debian) for open3d" >&2
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq >/dev/null
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+  else
+    echo "setup: warning: libusb-1.0 is missing and open3d (tests) needs it: run 'sudo apt-get install libusb-1.0-0'" >&2
+  fi
+fi
 echo "setup: installing scenelabel and its dependencies" >&2
 if ! .venv/bin/python -m pip install -q -e ".[test]" > .venv/setup.log 2>&1; then
   cat .venv/setup.log >&2

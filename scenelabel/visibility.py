@@ -1,0 +1,368 @@
+"""Which world points the training cameras observed: projection into low-resolution depth maps.
+
+Numpy only (no torch). Conventions (docs/conventions.md): cameras are :class:`scenelabel.Cameras`
+with OpenCV axes (x right, y down, z forward) in the world frame; pixel (col, row) covers
+[col, col + 1) x [row, row + 1), its centre at (col + 0.5, row + 0.5); depth is the distance along
+the unit ray from the camera centre, and so are ``near`` and ``far``.
+
+The rule (docs/conventions.md, "Observed space"): a point ``p`` is *seen* by camera ``c`` when
+
+1. it is in front of the camera and inside its image rectangle: ``z > 0``,
+   ``0 <= u < width``, ``0 <= v < height`` with ``(u, v) = (fx x / z + cx, fy y / z + cy)``
+   (ideal pinhole: lens distortion is ignored here),
+2. its distance ``d = |p - centre|`` lies in the camera's ``[near, far]`` (unknown limits: 0, inf),
+3. it is not behind the first surface of the pixel it projects to:
+   ``d <= depth[row, col] + margin + pixel_margin * d / min(fx, fy)``, where ``depth`` is the
+   camera's depth map (``inf`` where the ray hits nothing) and the last term is ``pixel_margin``
+   pixel footprints at that distance (the depth maps are coarse).
+
+A point seen by no camera is unobserved. ``visible_from_cameras`` applies the rule to many points
+at once (vectorised over points, one pass per camera).
+
+For a map, the first surface is the map's own: :func:`first_occupied_depth` casts each (shrunk,
+:func:`scaled_cameras`) camera's pixel rays through the map's occupied voxels, and
+:func:`observed_voxels` applies the rule twice (docs/conventions.md, "Observed space"): an
+*occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one pixel footprint (a
+surface voxel's centre may lie up to that far behind where the pixel ray first meets the
+surface); a *transparent* voxel only when its centre is in front of the surface, with no margin,
+against :func:`min_depth_over_neighbours` of each depth map (so a voxel just behind a silhouette
+or a surface is never taken for observed free space)::
+
+    small = scaled_cameras(train_cameras, DEPTH_MAP_WIDTH)
+    observed = observed_voxels(label >= 0, origin, voxel_size, small)   # [nx, ny, nz] bool
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+from .maps import voxel_centers
+from .rays import rays_from_cameras
+from .scene import Cameras
+
+__all__ = [
+    "DEPTH_MAP_WIDTH",
+    "PIXEL_MARGIN",
+    "SQRT3",
+    "cameras_from_dict",
+    "cameras_to_dict",
+    "first_occupied_depth",
+    "min_depth_over_neighbours",
+    "observed_voxels",
+    "project_points",
+    "ray_box_distances",
+    "scaled_cameras",
+    "visible_from_cameras",
+]
+
+DEPTH_MAP_WIDTH = 80
+"""Visibility depth maps are rendered at most this many pixels wide (height keeps the aspect)."""
+
+PIXEL_MARGIN = 1.0
+"""Extra depth tolerance, in pixel footprints of the depth map at the point's distance."""
+
+SQRT3 = math.sqrt(3.0)
+"""A voxel's diagonal over its edge: maps use ``margin = SQRT3 * voxel_size``."""
+
+RAY_STEP_VOXELS = 0.5
+"""Rays cast through a grid are sampled every half voxel (a ray clipping a voxel's edge or corner
+by less than that may pass it)."""
+
+_RAY_CHUNK = 8192  # rays per pass of first_occupied_depth (bounds its memory: chunk x block x 3)
+_SAMPLE_BLOCK = 64  # samples per ray per step of the march; finished rays drop out between blocks
+
+_CAMERA_FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height", "distortion", "near", "far")
+_INT_FIELDS = ("width", "height")
+
+
+def scaled_cameras(cameras: Cameras, max_width: int = DEPTH_MAP_WIDTH) -> Cameras:
+    """The same cameras with images shrunk to at most ``max_width`` pixels wide (never enlarged).
+
+    Per camera ``w' = max(1, round(w * s))``, ``h' = max(1, round(h * s))`` with
+    ``s = min(1, max_width / w)``; intrinsics scale per axis by ``w' / w`` and ``h' / h``, so the
+    image rectangle covers the same rays (pixel centres stay at +0.5 of the new pixels).
+    Distortion is dropped (the small images are ideal pinholes).
+
+    Args:
+        cameras: n cameras.
+        max_width: widest image allowed, pixels (>= 1).
+    Returns:
+        n cameras, zero distortion, same poses and near / far.
+    """
+    if int(max_width) < 1:
+        raise InputError(f"max_width must be >= 1, got {max_width}", field="max_width")
+    width = cameras.width.astype(np.float64)
+    height = cameras.height.astype(np.float64)
+    s = np.minimum(1.0, int(max_width) / width)  # [n]
+    new_w = np.maximum(1, np.round(width * s)).astype(np.int64)
+    new_h = np.maximum(1, np.round(height * s)).astype(np.int64)
+    sx, sy = new_w / width, new_h / height  # [n] each
+    return Cameras(
+        c2w=cameras.c2w.copy(),
+        fx=cameras.fx * sx,
+        fy=cameras.fy * sy,
+        cx=cameras.cx * sx,
+        cy=cameras.cy * sy,
+        width=new_w,
+        height=new_h,
+        distortion=np.zeros_like(cameras.distortion),
+        near=cameras.near.copy(),
+        far=cameras.far.copy(),
+    )
+
+
+def project_points(
+    points: np.ndarray, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal-pinhole projection of world points into one camera (OpenCV axes).
+
+    Args:
+        points: [N, 3] world points.
+        c2w: [4, 4] camera-to-world (OpenCV axes: x right, y down, z forward).
+        fx, fy, cx, cy: intrinsics in pixels (pixel centres at +0.5).
+    Returns:
+        uv: [N, 2] continuous pixel coordinates (NaN where ``z <= 0``: not in front).
+        z: [N] camera-frame z (forward) of each point.
+        dist: [N] distance from the camera centre, i.e. the depth along the point's unit ray.
+    """
+    rel = np.asarray(points, np.float64) - c2w[:3, 3]  # [N, 3] world offsets from the centre
+    cam = rel @ c2w[:3, :3]  # [N, 3] camera frame: R^T (p - t)
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_z = np.where(z > 0, 1.0 / z, np.nan)
+    uv = np.stack([fx * cam[:, 0] * inv_z + cx, fy * cam[:, 1] * inv_z + cy], axis=-1)
+    return uv, z, np.linalg.norm(rel, axis=-1)
+
+
+def _check_inputs(points: Any, cameras: Cameras, depth_maps: Sequence[np.ndarray], margin: float) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"points must have shape (N, 3), got {points.shape}", field="points")
+    if len(depth_maps) != len(cameras):
+        raise InputError(f"{len(cameras)} cameras but {len(depth_maps)} depth maps", field="depth_maps")
+    for i, depth in enumerate(depth_maps):
+        expected = (int(cameras.height[i]), int(cameras.width[i]))
+        if np.shape(depth) != expected:
+            raise InputError(
+                f"depth map {i} has shape {np.shape(depth)}, expected [height, width] = {list(expected)}",
+                field="depth_maps",
+            )
+    if not (math.isfinite(float(margin)) and float(margin) >= 0):
+        raise InputError(f"margin must be a finite number >= 0, got {margin!r}", field="margin")
+    return points
+
+
+def visible_from_cameras(
+    points: Any,
+    cameras: Cameras,
+    depth_maps: Sequence[np.ndarray],
+    margin: float,
+    pixel_margin: float = PIXEL_MARGIN,
+) -> np.ndarray:
+    """Which points at least one camera saw (the rule of the module docstring).
+
+    Args:
+        points: [N, 3] world points.
+        cameras: n cameras; camera i's image is ``depth_maps[i]`` (sizes must match).
+        depth_maps: n arrays [height_i, width_i]: distance along each pixel's unit ray to the
+            first surface, ``inf`` where the ray hits nothing.
+        margin: depth tolerance behind the surface, world units (maps: one voxel diagonal).
+        pixel_margin: extra tolerance in pixel footprints at the point's distance.
+    Returns:
+        [N] bool, True where some camera saw the point.
+    """
+    points = _check_inputs(points, cameras, depth_maps, margin)
+    seen = np.zeros(len(points), dtype=bool)
+    for i in range(len(cameras)):
+        todo = np.flatnonzero(~seen)  # only points no camera has seen yet
+        if todo.size == 0:
+            break
+        uv, z, dist = project_points(points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i])
+        near = cameras.near[i] if np.isfinite(cameras.near[i]) else 0.0
+        far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
+        width, height = int(cameras.width[i]), int(cameras.height[i])
+        with np.errstate(invalid="ignore"):
+            in_view = (
+                (z > 0)
+                & (uv[:, 0] >= 0) & (uv[:, 0] < width)
+                & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+                & (dist >= near) & (dist <= far)
+            )  # [n_todo]
+        hits = np.flatnonzero(in_view)
+        cols = np.floor(uv[hits, 0]).astype(np.int64)
+        rows = np.floor(uv[hits, 1]).astype(np.int64)
+        surface = np.asarray(depth_maps[i], np.float64)[rows, cols]  # [n_hits]
+        tolerance = margin + pixel_margin * dist[hits] / min(cameras.fx[i], cameras.fy[i])
+        seen[todo[hits[dist[hits] <= surface + tolerance]]] = True
+    return seen
+
+
+def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
+    """Each pixel's smallest depth over the ``size`` x ``size`` pixels around it (edges repeated).
+
+    Args:
+        depth: [h, w] depth map (``inf`` = no surface).
+        size: window edge, pixels (odd, >= 1).
+    Returns:
+        [h, w] float64, never larger than ``depth``.
+    """
+    from scipy.ndimage import minimum_filter
+
+    if int(size) < 1 or int(size) % 2 == 0:
+        raise InputError(f"size must be an odd integer >= 1, got {size!r}", field="size")
+    return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
+
+
+def ray_box_distances(origins: Any, directions: Any, lo: Any, hi: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Where rays cross the box [lo, hi] (slab test, rays extended both ways).
+
+    Args:
+        origins, directions: [R, 3] rays (directions need not be unit; distances are in
+            multiples of them; zero components are fine).
+        lo, hi: [3] box corners.
+    Returns:
+        t_enter, t_exit: [R] float64; ``t_exit < t_enter`` where the line misses the box.
+    """
+    origins = np.asarray(origins, dtype=np.float64)
+    directions = np.asarray(directions, dtype=np.float64)
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (lo - origins) / directions  # [R, 3]
+        tb = (hi - origins) / directions
+    parallel = directions == 0
+    within = (origins >= lo) & (origins <= hi)
+    t_lo = np.where(parallel, np.where(within, -np.inf, np.inf), np.minimum(ta, tb))
+    t_hi = np.where(parallel, np.where(within, np.inf, -np.inf), np.maximum(ta, tb))
+    return t_lo.max(-1), t_hi.min(-1)
+
+
+def first_occupied_depth(
+    origins: Any,
+    directions: Any,
+    occupied: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    near: Any = None,
+    far: Any = None,
+) -> np.ndarray:
+    """Distance along each ray to the first occupied voxel of a grid.
+
+    Each ray is clipped to the grid's box (voxel ``[i, j, k]`` covers centre ± voxel_size / 2,
+    centre ``origin + voxel_size * (i, j, k)``) and to ``[near, far]``, then sampled every
+    ``RAY_STEP_VOXELS`` voxel (at the middles of the steps); the answer is the first sample that
+    falls in an occupied voxel.
+
+    Args:
+        origins, directions: [R, 3] world rays, unit directions.
+        occupied: [nx, ny, nz] bool.
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        near, far: [R] or scalar distance limits (None or non-finite: 0 and inf).
+    Returns:
+        [R] float64 distance, ``inf`` where the ray meets no occupied voxel.
+    """
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    occupied = np.asarray(occupied, dtype=bool)
+    if occupied.ndim != 3 or len(origins) != len(directions):
+        raise InputError(
+            f"need occupied [nx, ny, nz] and as many directions as origins, got {occupied.shape}, "
+            f"{len(origins)} origins, {len(directions)} directions",
+            field="occupied",
+        )
+    n = len(origins)
+    near = np.broadcast_to(np.nan if near is None else np.asarray(near, np.float64), (n,))
+    far = np.broadcast_to(np.nan if far is None else np.asarray(far, np.float64), (n,))
+    shape = np.asarray(occupied.shape)
+    corner = np.asarray(origin, np.float64) - voxel_size / 2.0
+    t_enter, t_exit = ray_box_distances(origins, directions, corner, corner + voxel_size * shape)
+    t_enter = np.maximum(t_enter, np.where(np.isfinite(near), near, 0.0))
+    t_exit = np.minimum(t_exit, np.where(np.isfinite(far), far, np.inf))
+    step = voxel_size * RAY_STEP_VOXELS
+    flat = occupied.ravel()
+    offsets = (np.arange(_SAMPLE_BLOCK) + 0.5) * step  # [B] sample distances within a block
+    out = np.full(n, np.inf)
+    for start in range(0, n, _RAY_CHUNK):
+        active = start + np.flatnonzero(t_exit[start : start + _RAY_CHUNK] > t_enter[start : start + _RAY_CHUNK])
+        first_sample = 0
+        while active.size:
+            ts = t_enter[active, None] + first_sample * step + offsets  # [A, B]
+            valid = ts <= t_exit[active, None]
+            pts = origins[active, None, :] + ts[..., None] * directions[active, None, :]  # [A, B, 3]
+            ijk = np.clip(np.floor((pts - corner) / voxel_size).astype(np.int64), 0, shape - 1)
+            hit = valid & flat[np.ravel_multi_index(tuple(np.moveaxis(ijk, -1, 0)), occupied.shape)]  # [A, B]
+            any_hit = hit.any(-1)
+            rows = np.flatnonzero(any_hit)
+            out[active[rows]] = ts[rows, hit[rows].argmax(-1)]
+            active = active[~any_hit & valid[:, -1]]  # not hit and not past the exit yet
+            first_sample += _SAMPLE_BLOCK
+    return out
+
+
+def observed_voxels(
+    occupied: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    cameras: Cameras,
+    occluder_depth: Sequence[np.ndarray] | None = None,
+    chunk: int = 32,
+) -> np.ndarray:
+    """Which voxels of a grid the cameras observed, the grid's occupied voxels being the surfaces.
+
+    Each camera's pixel rays (use small cameras, :func:`scaled_cameras`) are cast through the grid
+    (:func:`first_occupied_depth`, within the camera's near / far). Then an occupied voxel is
+    observed when some camera sees its centre (:func:`visible_from_cameras`) with ``margin =
+    SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees its centre
+    in front of the nearest surface of its 3x3 pixels (:func:`min_depth_over_neighbours`, no
+    margin).
+
+    Args:
+        occupied: [nx, ny, nz] bool, the grid's occupied voxels.
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        cameras: n cameras (pinholes; distortion is ignored).
+        occluder_depth: optional n depth maps [h_i, w_i] of surfaces the grid does not hold (e.g.
+            outside its box); each pixel's surface is the nearer of the two.
+        chunk: voxels per block edge (bounds the memory).
+    Returns:
+        [nx, ny, nz] bool.
+    """
+    occupied = np.asarray(occupied, dtype=bool)
+    depth = []
+    for i in range(len(cameras)):
+        origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
+        hit = first_occupied_depth(origins, directions, occupied, origin, voxel_size, cameras.near[i], cameras.far[i])
+        hit = hit.reshape(int(cameras.height[i]), int(cameras.width[i]))
+        depth.append(hit if occluder_depth is None else np.minimum(hit, occluder_depth[i]))
+    front = [min_depth_over_neighbours(d) for d in depth]
+    observed = np.zeros(occupied.shape, dtype=bool)
+    for sl, centres in voxel_centers(origin, voxel_size, occupied.shape, chunk):
+        occ = occupied[sl].ravel()  # [V]
+        seen = np.empty(len(centres), dtype=bool)
+        seen[occ] = visible_from_cameras(centres[occ], cameras, depth, SQRT3 * voxel_size)
+        seen[~occ] = visible_from_cameras(centres[~occ], cameras, front, 0.0, pixel_margin=0.0)
+        observed[sl] = seen.reshape(occupied[sl].shape)
+    return observed
+
+
+def cameras_to_dict(cameras: Cameras) -> dict[str, list]:
+    """Cameras as plain lists (for checkpoints): the fields of :class:`Cameras`."""
+    return {name: getattr(cameras, name).tolist() for name in _CAMERA_FIELDS}
+
+
+def cameras_from_dict(data: dict[str, Any]) -> Cameras:
+    """Inverse of :func:`cameras_to_dict`."""
+    try:
+        return Cameras(
+            **{
+                name: np.asarray(data[name], dtype=np.int64 if name in _INT_FIELDS else np.float64)
+                for name in _CAMERA_FIELDS
+            }
+        )
+    except KeyError as err:
+        raise InputError(f"camera record lacks {err.args[0]!r}", field=str(err.args[0])) from None

@@ -1,0 +1,303 @@
+"""Tests of scenelabel.visibility: projection, shrunk cameras, the observed-space rule (numpy only)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scenelabel.errors import InputError
+from scenelabel.io.transforms_json import opengl_to_opencv
+from scenelabel.rays import camera_directions_from_pixels
+from scenelabel.scene import Cameras
+from scenelabel.synthetic import look_at
+from scenelabel.visibility import (
+    RAY_STEP_VOXELS,
+    cameras_from_dict,
+    cameras_to_dict,
+    first_occupied_depth,
+    min_depth_over_neighbours,
+    observed_voxels,
+    project_points,
+    ray_box_distances,
+    scaled_cameras,
+    visible_from_cameras,
+)
+
+
+def cv_look_at(eye, target) -> np.ndarray:
+    """[4, 4] OpenCV camera-to-world looking from eye at target (world z up)."""
+    return opengl_to_opencv(look_at(np.asarray(eye, float), np.asarray(target, float)))
+
+
+def three_cameras() -> Cameras:
+    """Three hand-built cameras around the origin, different intrinsics and limits."""
+    c2w = np.stack([cv_look_at((4, 0, 1), (0, 0, 0)), cv_look_at((0, -3, 2), (0, 0, 0.5)), cv_look_at((-2, 2, 3), (0, 0, 0))])
+    return Cameras.create(
+        c2w, fx=[40.0, 25.0, 30.0], fy=[40.0, 30.0, 30.0], cx=[16.0, 10.0, 12.5], cy=[12.0, 8.0, 9.0],
+        width=[32, 20, 24], height=[24, 16, 18], near=[0.5, np.nan, 1.0], far=[8.0, np.nan, 4.5],
+    )
+
+
+def naive_visible(points, cameras, depth_maps, margin, pixel_margin=1.0):
+    """The rule of scenelabel.visibility, one point and one camera at a time, plain Python."""
+    out = []
+    for p in points:
+        seen = False
+        for i in range(len(cameras)):
+            R, t = cameras.c2w[i, :3, :3], cameras.c2w[i, :3, 3]
+            rel = [p[a] - t[a] for a in range(3)]
+            cam = [sum(R[r, c] * rel[r] for r in range(3)) for c in range(3)]  # R^T (p - t)
+            if cam[2] <= 0:
+                continue
+            u = cameras.fx[i] * cam[0] / cam[2] + cameras.cx[i]
+            v = cameras.fy[i] * cam[1] / cam[2] + cameras.cy[i]
+            if not (0 <= u < cameras.width[i] and 0 <= v < cameras.height[i]):
+                continue
+            d = math.sqrt(sum(x * x for x in rel))
+            near = cameras.near[i] if math.isfinite(cameras.near[i]) else 0.0
+            far = cameras.far[i] if math.isfinite(cameras.far[i]) else math.inf
+            if not near <= d <= far:
+                continue
+            surface = depth_maps[i][math.floor(v), math.floor(u)]
+            if d <= surface + margin + pixel_margin * d / min(cameras.fx[i], cameras.fy[i]):
+                seen = True
+                break
+        out.append(seen)
+    return np.array(out, dtype=bool)
+
+
+def test_project_points_known_values():
+    c2w = np.eye(4)  # camera at the origin looking down +z (OpenCV)
+    uv, z, dist = project_points(np.array([[1.0, 2.0, 4.0], [0.0, 0.0, -1.0]]), c2w, 100.0, 50.0, 32.0, 24.0)
+    np.testing.assert_allclose(uv[0], [100 * 1 / 4 + 32, 50 * 2 / 4 + 24])
+    np.testing.assert_allclose(z, [4.0, -1.0])
+    np.testing.assert_allclose(dist, [math.sqrt(21.0), 1.0])
+    assert np.all(np.isnan(uv[1]))  # behind the camera
+
+
+def test_project_points_inverts_pixel_rays():
+    """A point on the ray through a pixel centre projects back to that pixel centre (+0.5 rule)."""
+    cams = three_cameras()
+    for i in range(len(cams)):
+        pix = np.array([[0.5, 0.5], [3.5, 7.5], [cams.width[i] - 0.5, cams.height[i] - 0.5]])
+        dirs = camera_directions_from_pixels(pix, cams.fx[i], cams.fy[i], cams.cx[i], cams.cy[i]) @ cams.c2w[i, :3, :3].T
+        pts = cams.c2w[i, :3, 3] + 2.5 * dirs
+        uv, z, dist = project_points(pts, cams.c2w[i], cams.fx[i], cams.fy[i], cams.cx[i], cams.cy[i])
+        np.testing.assert_allclose(uv, pix, atol=1e-9)
+        np.testing.assert_allclose(dist, 2.5)  # depth = distance along the unit ray
+        assert np.all(z > 0)
+
+
+def test_scaled_cameras_keep_the_rays():
+    cams = Cameras.create(np.eye(4), fx=150.0, fy=140.0, cx=80.0, cy=60.0, width=160, height=120, distortion=[0.1, 0, 0, 0])
+    small = scaled_cameras(cams, 80)
+    assert (int(small.width[0]), int(small.height[0])) == (80, 60)
+    np.testing.assert_allclose([small.fx[0], small.fy[0], small.cx[0], small.cy[0]], [75.0, 70.0, 40.0, 30.0])
+    assert not small.has_distortion.any()
+    # small pixel centre (0.5, 0.5) covers big continuous coordinate (1, 1): same ray
+    a = camera_directions_from_pixels(np.array([[0.5, 0.5]]), small.fx[0], small.fy[0], small.cx[0], small.cy[0])
+    b = camera_directions_from_pixels(np.array([[1.0, 1.0]]), 150.0, 140.0, 80.0, 60.0)
+    np.testing.assert_allclose(a, b)
+    same = scaled_cameras(cams, 1000)  # never enlarged
+    assert int(same.width[0]) == 160 and same.fx[0] == 150.0
+    with pytest.raises(InputError, match="max_width"):
+        scaled_cameras(cams, 0)
+
+
+def test_hand_built_rule():
+    """One camera at the origin looking down +z; a flat 'surface' 5 units along every ray."""
+    cams = Cameras.create(np.eye(4), fx=10.0, fy=10.0, cx=5.0, cy=5.0, width=10, height=10, near=1.0, far=20.0)
+    depth = [np.full((10, 10), 5.0)]
+    margin = 0.1
+    # seen while d <= 5 + margin + d / fx (one pixel footprint at the point's own distance d)
+    limit = (5.0 + margin) / (1.0 - 1.0 / 10.0)
+    pts = np.array([
+        [0.0, 0.0, 3.0],                        # in front of the surface: seen
+        [0.0, 0.0, limit - 1e-6],               # just within the tolerance: seen
+        [0.0, 0.0, limit + 1e-6],               # just beyond it: behind the surface
+        [0.0, 0.0, 0.5],                        # nearer than near
+        [0.0, 0.0, -3.0],                       # behind the camera
+        [4.0, 0.0, 3.0],                        # u = 10 * 4 / 3 + 5 > width: outside the image
+    ])
+    np.testing.assert_array_equal(visible_from_cameras(pts, cams, depth, margin), [True, True, False, False, False, False])
+    # a ray that hits nothing (inf) sees everything up to far
+    far_pts = np.array([[0.0, 0.0, 15.0], [0.0, 0.0, 25.0]])
+    np.testing.assert_array_equal(visible_from_cameras(far_pts, cams, [np.full((10, 10), np.inf)], margin), [True, False])
+
+
+def test_vectorised_matches_naive_loop():
+    rng = np.random.default_rng(3)
+    cams = three_cameras()
+    depth_maps = []
+    for i in range(len(cams)):
+        d = rng.uniform(1.5, 6.0, (int(cams.height[i]), int(cams.width[i])))
+        d[rng.random(d.shape) < 0.2] = np.inf  # some rays hit nothing
+        depth_maps.append(d)
+    pts = rng.uniform(-3, 3, (2000, 3))
+    fast = visible_from_cameras(pts, cams, depth_maps, margin=0.1)
+    slow = naive_visible(pts, cams, depth_maps, margin=0.1)
+    np.testing.assert_array_equal(fast, slow)
+    assert 0.05 < fast.mean() < 0.95  # a meaningful mix
+
+
+def test_min_depth_over_neighbours():
+    depth = np.full((5, 6), np.inf)
+    depth[2, 3] = 2.0
+    depth[0, 0] = 1.0
+    out = min_depth_over_neighbours(depth)
+    expected = np.full((5, 6), np.inf)
+    expected[1:4, 2:5] = 2.0
+    expected[0:2, 0:2] = 1.0
+    np.testing.assert_array_equal(out, expected)
+    np.testing.assert_array_equal(min_depth_over_neighbours(depth, size=1), depth)
+    assert np.all(out <= depth)
+    with pytest.raises(InputError, match="size"):
+        min_depth_over_neighbours(depth, size=2)
+
+
+# A 10^3 grid of 0.1 voxels covering [0, 1]^3 with an occupied wall at x in [0.5, 0.6).
+GRID_ORIGIN = np.array([0.05, 0.05, 0.05])
+GRID_VOXEL = 0.1
+
+
+def wall_grid() -> np.ndarray:
+    occupied = np.zeros((10, 10, 10), bool)
+    occupied[5] = True
+    return occupied
+
+
+def naive_first_occupied(origin, direction, occupied, near, far):
+    """One ray at a time: slab clip, then step through the samples in plain Python."""
+    lo = GRID_ORIGIN - GRID_VOXEL / 2
+    hi = lo + GRID_VOXEL * np.array(occupied.shape)
+    t0, t1 = max(0.0, near), far
+    for a in range(3):
+        if direction[a] == 0:
+            if not lo[a] <= origin[a] <= hi[a]:
+                return math.inf
+            continue
+        ta, tb = (lo[a] - origin[a]) / direction[a], (hi[a] - origin[a]) / direction[a]
+        t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+    step = GRID_VOXEL * RAY_STEP_VOXELS
+    k = 0
+    while t0 + (k + 0.5) * step <= t1:
+        t = t0 + (k + 0.5) * step
+        ijk = [min(max(math.floor((origin[a] + t * direction[a] - lo[a]) / GRID_VOXEL), 0), occupied.shape[a] - 1) for a in range(3)]
+        if occupied[tuple(ijk)]:
+            return t
+        k += 1
+    return math.inf
+
+
+def test_first_occupied_depth_hand_built():
+    occupied = wall_grid()
+    origins = np.array([[-1.0, 0.55, 0.55], [-1.0, 0.55, 0.55], [0.3, -1.0, 0.5], [-1.0, 5.0, 0.5], [0.2, 0.5, 0.5]])
+    directions = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [1.0, 0, 0], [1.0, 0, 0]])
+    far = np.array([np.inf, 1.3, np.inf, np.inf, np.inf])
+    depth = first_occupied_depth(origins, directions, occupied, GRID_ORIGIN, GRID_VOXEL, far=far)
+    # enters at x = 0 (t = 1), samples at x = 0.025, 0.075, ...: the first in the wall is x = 0.525
+    np.testing.assert_allclose(depth, [1.525, np.inf, np.inf, np.inf, 0.325])
+
+
+def test_first_occupied_depth_matches_naive_loop():
+    rng = np.random.default_rng(5)
+    occupied = rng.random((10, 10, 10)) < 0.05
+    origins = rng.uniform(-1.5, 2.5, (300, 3))
+    directions = rng.uniform(0.0, 1.0, (300, 3)) - origins  # mostly towards the grid
+    directions[:20, 1] = 0.0  # some rays parallel to a slab
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    near = rng.uniform(0.0, 0.5, 300)
+    far = np.where(rng.random(300) < 0.3, rng.uniform(0.5, 3.0, 300), np.inf)
+    fast = first_occupied_depth(origins, directions, occupied, GRID_ORIGIN, GRID_VOXEL, near, far)
+    slow = [naive_first_occupied(o, d, occupied, n, f) for o, d, n, f in zip(origins, directions, near, far)]
+    np.testing.assert_allclose(fast, slow, rtol=1e-9)
+    assert np.isfinite(fast).sum() > 20
+
+
+def test_ray_box_distances():
+    origins = np.array([[-1.0, 0.5, 0.5], [0.5, 0.5, 0.5], [-1.0, 2.0, 0.5], [0.5, -1.0, 0.5]])
+    directions = np.array([[2.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    t_enter, t_exit = ray_box_distances(origins, directions, [0, 0, 0], [1, 1, 1])
+    np.testing.assert_allclose(t_enter[[0, 1, 3]], [0.5, -0.5, 1.0])  # in multiples of the direction
+    np.testing.assert_allclose(t_exit[[0, 1, 3]], [1.0, 0.5, 2.0])
+    assert t_exit[2] < t_enter[2]  # parallel to a slab, outside it: a miss
+
+
+def test_observed_voxels_hand_built_wall():
+    """A camera in front of a wall sees the space before it and the wall itself, not behind it."""
+    cams = Cameras.create(cv_look_at((-1.0, 0.5, 0.5), (0.0, 0.5, 0.5)), fx=16.0, fy=16.0, cx=16.0, cy=16.0, width=32, height=32)
+    observed = observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams)
+    assert observed[:4].all()  # free, in front of the wall
+    # the layer touching the wall: its corners are behind the nearest surface of their 3x3 pixels
+    assert observed[4].mean() >= 0.9
+    assert observed[5].all()  # the wall: occupied, within the margin of the first surface
+    assert not observed[6:].any()  # behind it
+    # a surface outside the grid (a depth map of 0.5 everywhere) hides it all but the nearest layers
+    near_wall = [np.full((32, 32), 0.5)]
+    assert not observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams, occluder_depth=near_wall)[2:].any()
+
+
+def test_input_errors():
+    cams = three_cameras()
+    maps = [np.zeros((int(h), int(w))) for h, w in zip(cams.height, cams.width)]
+    with pytest.raises(InputError, match="points"):
+        visible_from_cameras(np.zeros((4, 2)), cams, maps, 0.1)
+    with pytest.raises(InputError, match="depth map 1"):
+        visible_from_cameras(np.zeros((4, 3)), cams, [maps[0], maps[0], maps[2]], 0.1)
+    with pytest.raises(InputError, match="depth maps"):
+        visible_from_cameras(np.zeros((4, 3)), cams, maps[:2], 0.1)
+    with pytest.raises(InputError, match="margin"):
+        visible_from_cameras(np.zeros((4, 3)), cams, maps, -1.0)
+    assert visible_from_cameras(np.zeros((0, 3)), cams, maps, 0.1).shape == (0,)
+
+
+def test_cameras_dict_round_trip():
+    cams = three_cameras()
+    back = cameras_from_dict(cameras_to_dict(cams))
+    for name in cams.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(back, name), getattr(cams, name))
+    assert back.width.dtype == np.int64
+    with pytest.raises(InputError, match="c2w"):
+        cameras_from_dict({k: v for k, v in cameras_to_dict(cams).items() if k != "c2w"})
+
+
+# ---------------------------------------------------------------------------- on the trained toy scene
+
+
+@pytest.mark.slow
+def test_toy_scene_map_observed_space(toy_build):
+    """Box interiors are UNKNOWN (occluded from every camera) or occupied, box tops stay occupied
+    with their class, space above the boxes is FREE, space under the floor and outside every
+    frustum is UNKNOWN. The trained surfaces are soft (a voxel or two deep), hence the insets."""
+    from scenelabel import FREE, UNKNOWN
+    from scenelabel.synthetic import TOY_BOXES
+
+    field = toy_build.field
+    m = field.occupancy_map(voxel_size=0.05)
+    assert m.unknown_rule == "visibility"
+    vs = m.voxel_size
+    centres = m.world_from_index(np.stack(np.meshgrid(*[np.arange(n) for n in m.shape], indexing="ij"), -1).reshape(-1, 3))
+    label = m.label.reshape(-1)
+    for box in TOY_BOXES[1:]:
+        lo, hi = np.array(box.lo), np.array(box.hi)
+        inside = np.all((centres > lo + 2 * vs) & (centres < hi - 2 * vs), axis=1)
+        assert inside.any() and set(np.unique(label[inside]).tolist()) <= {UNKNOWN, box.class_id}, box.part
+        deep = np.all((centres > lo + 3 * vs) & (centres < hi - 3 * vs), axis=1)
+        assert deep.any() and np.mean(label[deep] == UNKNOWN) >= 0.9, box.part
+        footprint = np.all((centres[:, :2] > lo[:2] + 2 * vs) & (centres[:, :2] < hi[:2] - 2 * vs), axis=1)
+        top = footprint & (np.abs(centres[:, 2] - hi[2]) <= vs / 2)
+        assert top.any() and np.all(label[top] == box.class_id), box.part
+        above = footprint & (centres[:, 2] > hi[2] + 2 * vs) & (centres[:, 2] < hi[2] + 5 * vs)
+        assert above.any() and np.all(label[above] == FREE), box.part
+    under_floor = (centres[:, 2] < -0.1) & np.all(np.abs(centres[:, :2]) < 1.4, axis=1)  # floor: |x|, |y| < 1.5
+    assert under_floor.any() and not np.any(label[under_floor] == FREE)
+    assert np.mean(label[under_floor] == UNKNOWN) >= 0.99  # a few soft-surface voxels stay occupied
+    cams = field.training_cameras()
+    in_any = np.zeros(len(centres), bool)
+    for i in range(len(cams)):
+        uv, z, _ = project_points(centres, cams.c2w[i], cams.fx[i], cams.fy[i], cams.cx[i], cams.cy[i])
+        with np.errstate(invalid="ignore"):
+            in_any |= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cams.width[i]) & (uv[:, 1] >= 0) & (uv[:, 1] < cams.height[i])
+    assert np.all(label[~in_any] == UNKNOWN)
