@@ -30,6 +30,7 @@ for the defaults: from one voxel above the floor's top to below the ceiling, or 
 
 from __future__ import annotations
 
+import io
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -38,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from ._files import atomic_write_bytes
 from .errors import InputError
 from .maps import FREE, UNKNOWN, OccupancyMap, index_from_world, world_from_index
 
@@ -273,8 +275,7 @@ def write_ply(path: str | Path, vertex: Mapping[str, np.ndarray], faces: np.ndar
         tris["v"] = faces
         header += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
         body.append(tris.tobytes())
-    path.write_bytes("\n".join(header + ["end_header"]).encode("ascii") + b"\n" + b"".join(body))
-    return path
+    return atomic_write_bytes(path, "\n".join(header + ["end_header"]).encode("ascii") + b"\n" + b"".join(body))
 
 
 def _safe_name(name: str) -> str:
@@ -635,7 +636,10 @@ def write_nav2(
         "labels": stem.with_name(stem.name + "_labels.png"),
     }
     height, width = pixels.shape
-    paths["pgm"].write_bytes(f"P5\n{width} {height}\n255\n".encode("ascii") + pixels.tobytes())
-    paths["yaml"].write_text(_nav2_yaml(paths["pgm"].name, plan), encoding="utf-8")
-    Image.fromarray(colors_from_plan(plan)).save(paths["labels"])
+    atomic_write_bytes(paths["pgm"], f"P5\n{width} {height}\n255\n".encode("ascii") + pixels.tobytes())
+    png = io.BytesIO()
+    Image.fromarray(colors_from_plan(plan)).save(png, format="PNG")
+    atomic_write_bytes(paths["labels"], png.getvalue())
+    # the YAML names the PGM and is what map servers load: written last
+    atomic_write_bytes(paths["yaml"], _nav2_yaml(paths["pgm"].name, plan).encode("utf-8"))
     return paths

@@ -24,6 +24,7 @@ import torch
 from PIL import Image
 
 from ._version import __version__
+from ._files import atomic_write_bytes
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from .config import BuildConfig, config_from_dict, config_to_dict, preset
 from .errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
@@ -169,10 +170,7 @@ def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: fl
     return config
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+
 
 
 def build(
@@ -256,7 +254,7 @@ def build(
         kept = f"; the last checkpoint before the failure is kept at {ckpt_path}" if ckpt_path.exists() else ""
         raise TrainingError(f"{err}{kept}") from None
     save_checkpoint(ckpt_path, payload(trainer))
-    _atomic_write_text(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2))
+    atomic_write_bytes(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2).encode())
 
     field = SemanticField.load(out_dir, device=str(dev))
     renders_dir = None
@@ -289,5 +287,5 @@ def build(
             "shape": list(occ_map.shape),
             "seconds": time.perf_counter() - t0,
         }
-    _atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2, default=float))
+    atomic_write_bytes(out_dir / "metrics.json", json.dumps(metrics, indent=2, default=float).encode())
     return BuildResult(field=field, metrics=metrics, out_dir=out_dir)
