@@ -11,13 +11,15 @@ Public API (numpy in, numpy out)::
 """
 
 from ._version import __version__
-from .config import BuildConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
+from .config import BuildConfig, DataConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
 from .errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
 from .io import load_scene
 from .maps import FREE, UNKNOWN, OccupancyMap
 from .pipeline import BuildResult, build
 from .scene import Cameras, ClassMap, Scene
+from .segmenters import Segmenter, load_segmenter, segment_scene
 from .semantic_field import PointQuery, RayQuery, RenderResult, SemanticField
+from .sfm import SfmResult, run_sfm
 from .synthetic import write_furnished_room, write_toy_scene
 
 __all__ = [
@@ -32,10 +34,16 @@ __all__ = [
     "build",
     "BuildResult",
     "load_scene",
+    "run_sfm",
+    "SfmResult",
+    "Segmenter",
+    "load_segmenter",
+    "segment_scene",
     "Scene",
     "Cameras",
     "ClassMap",
     "BuildConfig",
+    "DataConfig",
     "FieldConfig",
     "SamplingConfig",
     "TrainConfig",

@@ -1,4 +1,4 @@
-"""The command line: ``scenelabel build | demo | toy | export``.
+"""The command line: ``scenelabel build | demo | toy | export | segment | sfm``.
 
 Errors a user can cause print one line (``scenelabel: error: ...``) and exit with status 2;
 they never show a traceback.
@@ -33,6 +33,9 @@ def _overrides(args: argparse.Namespace) -> dict:
     if args.holdout is not None:
         train["holdout"] = args.holdout
     overrides: dict = {"train": train}
+    data = {key: getattr(args, key) for key in ("downscale", "scale") if getattr(args, key, None) is not None}
+    if data:
+        overrides["data"] = data
     if args.voxel_size is not None:
         overrides["output"] = {"map_voxel_size": args.voxel_size}
     if args.config:
@@ -58,6 +61,10 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
     p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all)")
     p.add_argument("--voxel-size", type=float, help="occupancy-map voxel size in world units")
+    p.add_argument("--downscale", type=int, metavar="N", help="shrink images N times (uses LLFF-style images_N/ when present)")
+    p.add_argument(
+        "--scale", type=float, help="multiply the input's world units by this (e.g. metres per COLMAP unit); recorded in exports"
+    )
     p.add_argument("--config", help="JSON file of config overrides: {section: {key: value}}")
     p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -73,9 +80,46 @@ def _print_metrics(metrics: dict, out_dir: Path) -> None:
     )
 
 
+def _segment(scene: str, spec: str, overwrite: bool, device: str | None, quiet: bool) -> None:
+    """Write labels/ and classes.json for ``scene`` with the segmenter ``spec``, and say what was found."""
+    from .segmenters import load_segmenter, segment_scene
+
+    segmenter = load_segmenter(spec, device=device)
+    result = segment_scene(scene, segmenter, overwrite=overwrite, progress=not quiet)
+    total = max(1, sum(result.counts.values()))
+    shown = ", ".join(
+        f"{segmenter.classes.get(i, 'unlabelled')} {100 * n / total:.1f}%" for i, n in result.counts.items() if n > 0
+    )
+    print(f"wrote {len(result.label_paths)} masks to {result.labels_dir} and {result.classes_path}")
+    print(f"classes present: {shown}")
+
+
+def _cmd_segment(args: argparse.Namespace) -> None:
+    _segment(args.scene, args.model, args.overwrite, args.device, args.quiet)
+
+
+def _cmd_sfm(args: argparse.Namespace) -> None:
+    from .sfm import run_sfm
+
+    result = run_sfm(
+        args.scene,
+        args.matcher,
+        args.max_image_size,
+        max_num_features=args.max_features,
+        min_registered=args.min_registered,
+        undistort=args.undistort,
+        force=args.force,
+    )
+    print(result.summary())
+    if result.unregistered:
+        print("not registered: " + ", ".join(result.unregistered))
+
+
 def _cmd_build(args: argparse.Namespace) -> None:
     from .pipeline import build, resume_config
 
+    if args.segmenter and not (Path(args.scene) / "labels").is_dir():
+        _segment(args.scene, args.segmenter, False, args.device, args.quiet)
     if args.resume:
         out = Path(args.out) if args.out else Path(args.scene) / "scenelabel"
         config = resume_config(out, args.steps, args.time_budget)
@@ -161,6 +205,11 @@ def make_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="continue from the checkpoint in the output folder, with its saved config (--steps/--time-budget may extend it)",
     )
+    p.add_argument(
+        "--segmenter",
+        metavar="SPEC",
+        help="when the scene has no labels/: write them first with this 2D segmentation model (see `segment`)",
+    )
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("demo", help="generate the toy two-box scene and build it end to end")
@@ -189,6 +238,36 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-max", type=float, help="nav2: top of the height band, world z (default: below the ceiling, or the map's top)")
     p.add_argument("--robot-height", type=float, help="nav2: band top = floor top + this (world units)")
     p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser(
+        "segment",
+        help="write labels/ and classes.json for a scene without masks, with a 2D segmentation model",
+        description="SPEC (docs/formats.md, 'Segmenters'): torchvision:ARCH[:WEIGHTS.pth] (weights from the local "
+        "torch hub cache when WEIGHTS is left out), onnx:MODEL.onnx:CLASSES.json (run by OpenCV dnn), or "
+        "python:MODULE:ATTR for your own model (MODULE a module name or a .py file). Nothing is downloaded.",
+    )
+    p.add_argument("scene", help="scene folder (the photos of images/ are labelled)")
+    p.add_argument("--model", required=True, metavar="SPEC", help="the segmentation model (see above)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing masks in labels/ and classes.json")
+    p.add_argument("--device", help="cpu or cuda, for torch models (default: cuda when available)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_segment)
+
+    p = sub.add_parser(
+        "sfm",
+        help="recover camera poses of an images-only scene with structure from motion (pycolmap), cached in sparse/0/",
+        description="SIFT features, exhaustive or sequential matching, incremental mapping; writes sparse/0/, "
+        "sfm/database.db, sfm/report.json and sfm/transforms.json (to inspect). `build` runs this by itself for a "
+        "folder with images/ only; run it by hand to choose the matcher.",
+    )
+    p.add_argument("scene", help="scene folder with images/")
+    p.add_argument("--matcher", choices=("auto", "exhaustive", "sequential"), default="auto", help="(default: auto)")
+    p.add_argument("--max-image-size", type=int, default=1600, help="longer side for feature detection (default: 1600)")
+    p.add_argument("--max-features", type=int, default=8192, help="SIFT features per image (default: 8192)")
+    p.add_argument("--min-registered", type=int, help="fewest registered images accepted (default: max(3, half))")
+    p.add_argument("--undistort", action="store_true", help="also write pinhole-undistorted images to sfm/undistorted/")
+    p.add_argument("--force", action="store_true", help="recompute even when sparse/0/ exists")
+    p.set_defaults(func=_cmd_sfm)
     return parser
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from .errors import ConfigError
 
 __all__ = [
+    "DataConfig",
     "FieldConfig",
     "SamplingConfig",
     "TrainConfig",
@@ -27,6 +28,20 @@ __all__ = [
 def _check_choice(name: str, value, allowed: tuple[str, ...]) -> None:
     if value not in allowed:
         raise ConfigError(f"unknown {name} {value!r}; choose one of {list(allowed)}")
+
+
+@dataclass
+class DataConfig:
+    """How the scene folder is read (saved with the checkpoint, so a resumed build reads it alike)."""
+
+    downscale: int = 1  # shrink images by this integer factor (LLFF-style images_N/ folders are used when present)
+    scale: float | None = None  # multiply the input's world units by this (e.g. metres per COLMAP unit); None: 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.downscale, bool) or not isinstance(self.downscale, int) or self.downscale < 1:
+            raise ConfigError(f"data.downscale must be an integer >= 1, got {self.downscale!r}")
+        if self.scale is not None and not (isinstance(self.scale, (int, float)) and 0 < self.scale < float("inf")):
+            raise ConfigError(f"data.scale must be a positive finite number, got {self.scale!r}")
 
 
 @dataclass
@@ -65,12 +80,16 @@ class FieldConfig:
 class SamplingConfig:
     """Where samples go along rays and how empty space is skipped."""
 
-    n_steps: int = 192  # marching steps across the scene box diagonal (sets the step size)
+    n_steps: int = 192  # marching steps across the scene box diagonal (sets the step size); disparity: per ray
+    warp: str = "auto"  # box: uniform cells over the scene box | forward: frustum cells, disparity steps (LLFF-style) | auto
     grid_resolution: int = 64  # occupancy grid side
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
     chunk_rays: int = 4096  # rays per chunk when rendering outside training
+
+    def __post_init__(self) -> None:
+        _check_choice("sampling.warp", self.warp, ("auto", "box", "forward"))
 
 
 @dataclass
@@ -114,6 +133,7 @@ class OutputConfig:
 class BuildConfig:
     """Everything one build resolves to; saved with the checkpoint."""
 
+    data: DataConfig = dataclasses.field(default_factory=DataConfig)
     field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
     sampling: SamplingConfig = dataclasses.field(default_factory=SamplingConfig)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
@@ -186,7 +206,7 @@ def _stage_from_dict(cls, data: dict, where: str):
 
 def config_from_dict(data: dict) -> BuildConfig:
     """Build a :class:`BuildConfig` from a nested dict; unknown keys raise :class:`ConfigError`."""
-    stages = {"field": FieldConfig, "sampling": SamplingConfig, "train": TrainConfig, "output": OutputConfig}
+    stages = {"data": DataConfig, "field": FieldConfig, "sampling": SamplingConfig, "train": TrainConfig, "output": OutputConfig}
     unknown = sorted(set(data) - set(stages) - {"preset"})
     if unknown:
         raise ConfigError(f"unknown config section(s) {unknown}; known: {sorted(stages) + ['preset']}")

@@ -194,7 +194,13 @@ def write_point_cloud(occ_map: OccupancyMap, path: str | Path) -> Path:
             "label": label.astype(np.int32),
             "occupancy": occ_map.occupancy[tuple(ijk.T)].astype(np.float32),
         },
+        comments=_frame_comments(occ_map),
     )
+
+
+def _frame_comments(occ_map: OccupancyMap) -> tuple[str, ...]:
+    """Header lines that say which frame and unit an export's coordinates are in."""
+    return (f"frame {occ_map.frame_id}; units {occ_map.units}; scale {occ_map.scale_source}",)
 
 
 # --------------------------------------------------------------------------------------------
@@ -238,7 +244,9 @@ def class_surface(mask: np.ndarray, origin: Any, voxel_size: float) -> tuple[np.
     return vertices, np.ascontiguousarray(faces[:, ::-1], dtype=np.int32), normals.astype(np.float32)
 
 
-def write_ply(path: str | Path, vertex: Mapping[str, np.ndarray], faces: np.ndarray | None = None) -> Path:
+def write_ply(
+    path: str | Path, vertex: Mapping[str, np.ndarray], faces: np.ndarray | None = None, comments: tuple[str, ...] = ()
+) -> Path:
     """Write a binary little-endian PLY: a ``vertex`` element and optionally triangle ``face``s.
 
     Args:
@@ -246,6 +254,7 @@ def write_ply(path: str | Path, vertex: Mapping[str, np.ndarray], faces: np.ndar
         vertex: property name -> [V] array (float64, float32, uint8, int8, uint16, int16,
             uint32 or int32), written in this order (e.g. x, y, z, nx, ny, nz, red, green, blue).
         faces: [F, 3] vertex indices (written as ``list uchar int vertex_indices``), or None.
+        comments: extra header ``comment`` lines (one line each, ASCII).
     Returns:
         the path written.
     """
@@ -261,7 +270,8 @@ def write_ply(path: str | Path, vertex: Mapping[str, np.ndarray], faces: np.ndar
     records = np.empty(n, dtype=[(name, values.dtype.newbyteorder("<")) for name, values in columns.items()])
     for name, values in columns.items():
         records[name] = values
-    header = ["ply", "format binary_little_endian 1.0", "comment written by scenelabel", f"element vertex {n}"]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by scenelabel"]
+    header += [f"comment {' '.join(c.split())}" for c in comments] + [f"element vertex {n}"]
     header += [f"property {_PLY_TYPES[values.dtype]} {name}" for name, values in columns.items()]
     body = [records.tobytes()]
     if faces is not None:
@@ -318,6 +328,7 @@ def write_class_meshes(occ_map: OccupancyMap, out_dir: str | Path) -> dict[int, 
                 "label": np.full(n, cid, np.int32),
             },
             faces,
+            comments=_frame_comments(occ_map),
         )
     return written
 
@@ -341,6 +352,7 @@ class FloorPlan:
         classes: class id -> name.
         class_colors: class id -> (r, g, b) 0-255, or None.
         frame_id: name of the world frame.
+        units, scale_source: the map's length unit and where its scale comes from.
     """
 
     label: np.ndarray
@@ -353,6 +365,8 @@ class FloorPlan:
     classes: dict[int, str]
     class_colors: dict[int, tuple[int, int, int]] | None = None
     frame_id: str = "world"
+    units: str = "input"
+    scale_source: str = "input"
 
     @property
     def occupied(self) -> np.ndarray:
@@ -531,6 +545,8 @@ def floor_plan(
         classes=dict(occ_map.classes),
         class_colors=occ_map.class_colors,
         frame_id=occ_map.frame_id,
+        units=occ_map.units,
+        scale_source=occ_map.scale_source,
     )
 
 
@@ -583,6 +599,7 @@ def _nav2_yaml(image_name: str, plan: FloorPlan) -> str:
                 f"(z band [{plan.z_min:.6g}, {plan.z_max:.6g}])"
             ),
             "# origin: world (x, y, yaw) of the lower-left corner of the lower-left pixel; row 0 of the image is max y",
+            f"# units: {plan.units} (scale: {plan.scale_source})",
             f"image: {image_name}",
             "mode: trinary",
             f"resolution: {plan.voxel_size!r}",

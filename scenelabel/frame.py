@@ -15,7 +15,7 @@ from .errors import InputError
 from .rays import camera_directions_from_pixels
 from .scene import Cameras
 
-__all__ = ["SceneFrame", "aabb_from_cameras", "frustum_points"]
+__all__ = ["SceneFrame", "aabb_from_cameras", "frustum_points", "near_far_or_fallback"]
 
 FALLBACK_FAR_FACTOR = 1.5
 """Without near/far, far = this x the diameter of the camera centres (an inward-looking capture)."""
@@ -50,6 +50,26 @@ def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.nd
     return np.concatenate(points)
 
 
+def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's [near, far], with the fallbacks where the input gives none.
+
+    Without far: FALLBACK_FAR_FACTOR x the diameter of the camera centres; without near:
+    FALLBACK_NEAR_FRACTION x far.
+
+    Returns:
+        near, far: [n] float64.
+    """
+    far = cameras.far.copy()
+    if np.any(~np.isfinite(far)):
+        centres = cameras.centres
+        diameter = float(np.linalg.norm(centres.max(0) - centres.min(0)))
+        if diameter <= 0:
+            raise InputError("cannot bound the scene: no near/far and all cameras at one point", field="far")
+        far = np.where(np.isfinite(far), far, FALLBACK_FAR_FACTOR * diameter)
+    near = np.where(np.isfinite(cameras.near), cameras.near, FALLBACK_NEAR_FRACTION * far)
+    return near, far
+
+
 def aabb_from_cameras(cameras: Cameras, explicit: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """Scene bounds: explicit ones when given, else the union of the camera frusta over [near, far].
 
@@ -64,17 +84,10 @@ def aabb_from_cameras(cameras: Cameras, explicit: np.ndarray | None = None) -> t
         if not np.all(np.isfinite(aabb)) or np.any(aabb[1] <= aabb[0]):
             raise InputError(f"scene aabb must be finite with max > min, got {aabb.tolist()}", field="aabb")
         return aabb, "explicit aabb"
-    centres = cameras.centres
-    diameter = float(np.linalg.norm(centres.max(0) - centres.min(0)))
-    far = cameras.far.copy()
-    near = cameras.near.copy()
+    near, far = near_far_or_fallback(cameras)
     source = "camera frusta over near/far"
-    if np.any(~np.isfinite(far)):
-        if diameter <= 0:
-            raise InputError("cannot bound the scene: no near/far and all cameras at one point", field="far")
-        far = np.where(np.isfinite(far), far, FALLBACK_FAR_FACTOR * diameter)
+    if np.any(~np.isfinite(cameras.far)):
         source = "camera frusta (far from camera spread: the input has no near/far)"
-    near = np.where(np.isfinite(near), near, FALLBACK_NEAR_FRACTION * far)
     pts = frustum_points(cameras, near, far)
     lo, hi = pts.min(0), pts.max(0)
     pad = AABB_PAD * float((hi - lo).max())

@@ -12,7 +12,17 @@ from skimage.metrics import structural_similarity
 
 from .errors import InputError
 
-__all__ = ["boundary_f1", "confusion_matrix", "depth_error", "label_boundaries", "miou", "psnr", "ssim"]
+__all__ = [
+    "boundary_f1",
+    "confusion_matrix",
+    "depth_error",
+    "label_boundaries",
+    "miou",
+    "pose_centre_errors",
+    "pose_rotation_errors_deg",
+    "psnr",
+    "ssim",
+]
 
 SSIM_WINDOW = 7
 """skimage's default SSIM window; smaller images use the largest odd window that fits."""
@@ -187,3 +197,51 @@ def boundary_f1(pred: np.ndarray, target: np.ndarray, tolerance: float = 2.0, ig
     precision = float(near_true[bp].mean())
     recall = float(near_pred[bt].mean())
     return 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+
+
+# ------------------------------------------------------------------ camera poses
+
+
+def _nearest_rotation(m: np.ndarray) -> np.ndarray:
+    """Nearest rotation matrix to ``m`` [3, 3] (SVD, det +1)."""
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def pose_rotation_errors_deg(c2w_true: np.ndarray, c2w_est: np.ndarray) -> np.ndarray:
+    """Per-camera rotation error in degrees, after fitting the unknown world rotation G.
+
+    For poses recovered in another world frame (structure from motion): G is the rotation
+    nearest to Σ_i R_true_i R_est_iᵀ (the least-squares fit of R_true ≈ G R_est), and the error of
+    camera i is the angle of R_true_iᵀ G R_est_i.
+
+    Args:
+        c2w_true, c2w_est: [n, 4, 4] camera-to-world, the same camera axes, matched by index.
+    Returns:
+        [n] float64 degrees.
+    """
+    r_true, r_est = np.asarray(c2w_true)[:, :3, :3], np.asarray(c2w_est)[:, :3, :3]
+    g = _nearest_rotation(np.sum(r_true @ np.transpose(r_est, (0, 2, 1)), axis=0))
+    cos = (np.trace(np.transpose(r_true, (0, 2, 1)) @ g @ r_est, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def pose_centre_errors(c2w_true: np.ndarray, c2w_est: np.ndarray) -> np.ndarray:
+    """Per-camera centre error after a similarity fit (Umeyama 1991), relative to the true spread.
+
+    Args:
+        c2w_true, c2w_est: [n, 4, 4] matched by index (n >= 3, centres not all collinear).
+    Returns:
+        [n] float64: |s R x_est + t - x_true| / RMS distance of the true centres from their mean.
+    """
+    x, y = np.asarray(c2w_est)[:, :3, 3], np.asarray(c2w_true)[:, :3, 3]
+    mx, my = x.mean(0), y.mean(0)
+    xc, yc = x - mx, y - my
+    u, s, vt = np.linalg.svd(yc.T @ xc / len(x))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rotation = u @ d @ vt
+    scale = np.trace(np.diag(s) @ d) / xc.var(0).sum()
+    aligned = scale * xc @ rotation.T + my
+    spread = np.sqrt((yc**2).sum(1).mean())
+    return np.linalg.norm(aligned - y, axis=1) / spread

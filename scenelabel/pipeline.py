@@ -16,6 +16,7 @@ import json
 import os
 import random
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,15 +30,16 @@ from .checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from .config import BuildConfig, config_from_dict, config_to_dict, preset
 from .errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
-from .frame import SceneFrame, aabb_from_cameras
+from .frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from .io import load_scene
 from .metrics import confusion_matrix, depth_error, miou, psnr, ssim
 from .postprocess import colorize_labels, side_by_side, smooth_class_probs
 from .sampling import OccupancyGrid
-from .scene import ClassMap, Scene
+from .scene import UNLABELLED_NAME, Cameras, ClassMap, Scene
 from .semantic_field import TRAIN_CAMERAS_KEY, SemanticField
 from .train import Trainer, rays_for_views
 from .visibility import cameras_to_dict
+from .warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
 
 __all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
 
@@ -127,7 +129,8 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         if renders_dir is not None:
             panels = [gt, out.rgb]
             panels = [(np.clip(p, 0, 1) * 255 + 0.5).astype(np.uint8) for p in panels]
-            panels += [colorize_labels(out.label, colors), colorize_labels(smoothed_label, colors)]
+            if field.class_map.names != (UNLABELLED_NAME,):  # a build without labels shows colour only
+                panels += [colorize_labels(out.label, colors), colorize_labels(smoothed_label, colors)]
             if label is not None:
                 panels.append(colorize_labels(label, colors, ignore_index=ignore))
             Image.fromarray(side_by_side(panels)).save(renders_dir / f"{scene.names[i]}.png")
@@ -173,6 +176,57 @@ def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: fl
 
 
 
+def choose_warp(kind: str, cameras: Cameras, frame: SceneFrame, aabb_n: torch.Tensor) -> BoxWarp | ForwardWarp:
+    """The field's warp (:mod:`scenelabel.warps`): ``"box"``, ``"forward"`` or ``"auto"`` (forward
+    when the training cameras are forward-facing, :func:`scenelabel.warps.forward_facing_reference`)."""
+    if kind == "box":
+        return BoxWarp(aabb_n)
+    near, far = near_far_or_fallback(cameras)
+    reference = forward_facing_reference(cameras, frustum_points(cameras, near, far))
+    if reference is None:
+        if kind == "forward":
+            raise InputError(
+                "sampling.warp is 'forward' but the training cameras are not forward-facing "
+                f"(optical axes within {FORWARD_MAX_ANGLE_DEG:g} degrees of their mean, the scene in front)"
+            )
+        return BoxWarp(aabb_n)
+    return ForwardWarp(
+        frame.to_internal(reference["centre"]),
+        reference["rotation"],
+        reference["tan_xy"],
+        reference["near"] * frame.scale,
+        reference["far"] * frame.scale,
+    )
+
+
+def _cell_steps(warp: BoxWarp | ForwardWarp, aabb_n: torch.Tensor, config: BuildConfig) -> float | torch.Tensor:
+    """The marching step through an occupancy-grid cell (normalised units), for its opacity threshold.
+
+    Uniform marching: the box diagonal / n_steps everywhere. Disparity marching (n_steps equal
+    steps of 1/t from near to far): a step at depth t is about t² Δ(1/t), so [R] per depth slice.
+    """
+    n_steps = config.sampling.n_steps
+    if warp.spacing == "disparity":
+        inv_near, inv_far = warp.inv_range.tolist()
+        r = config.sampling.grid_resolution
+        s = (torch.arange(r) + 0.5) / r * 2.0 - 1.0  # slice centres along the cube's depth axis
+        inv_t = inv_near - (s + 1.0) * 0.5 * (inv_near - inv_far)
+        return (inv_near - inv_far) / n_steps / inv_t**2
+    return float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / n_steps
+
+
+def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
+    """Channels for the classes in the training masks; one "unlabelled" channel when there are none."""
+    if all(scene.labels[i] is None for i in train_idx):
+        warnings.warn(
+            "no labels in the training views: building geometry and colour only (every surface is class 0, "
+            "'unlabelled'); write labels/ with `scenelabel segment` for semantics",
+            stacklevel=3,
+        )
+        return ClassMap.unlabelled()
+    return ClassMap.from_labels([scene.labels[i] for i in train_idx], scene.classes, scene.ignore_index)
+
+
 def build(
     scene_path: str | Path | Scene,
     out_dir: str | Path | None = None,
@@ -196,7 +250,9 @@ def build(
         BuildResult with the loaded SemanticField and the metrics.
     """
     config = config or preset("fast")
-    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path)
+    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path, config.data.downscale)
+    if config.data.scale is not None:
+        scene = scene.scaled(config.data.scale)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -208,14 +264,14 @@ def build(
     _seed_everything(config.train.seed)
 
     train_idx, test_idx = split_views(len(scene), config.train.holdout)
-    class_map = ClassMap.from_labels([scene.labels[i] for i in train_idx], scene.classes, scene.ignore_index)
+    class_map = _class_map(scene, train_idx)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb)
     frame = SceneFrame.from_aabb(aabb)
     aabb_n = torch.as_tensor(frame.to_internal(aabb), dtype=torch.float32)
-    model = SemanticField3D(config.field, class_map.num_classes, aabb_n)
-    diag_n = float(torch.linalg.norm(aabb_n[1] - aabb_n[0]))
+    warp = choose_warp(config.sampling.warp, scene.cameras[train_idx], frame, aabb_n)
+    model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
     grid = OccupancyGrid(
-        aabb_n, config.sampling.grid_resolution, diag_n / config.sampling.n_steps, config.sampling.alpha_threshold
+        warp, config.sampling.grid_resolution, _cell_steps(warp, aabb_n, config), config.sampling.alpha_threshold
     )
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
     trainer = Trainer(model, grid, rays, config, dev)
@@ -229,7 +285,9 @@ def build(
         "aabb_world": aabb.tolist(),
         "aabb_source": aabb_source,
         "aabb_internal": aabb_n.tolist(),
+        "warp": warp.to_dict(),
         "frame_id": scene.frame_id,
+        "world_scale": float(scene.info.get("world_scale", 1.0)),
         "finest_cell": finest,
         "default_voxel_size": default_voxel_size(scene, train_idx, aabb, finest),
         "train_views": [scene.names[i] for i in train_idx],

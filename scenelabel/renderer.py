@@ -17,7 +17,7 @@ from .rendering import (
     depth_from_weights,
     weights_from_density,
 )
-from .sampling import march_uniform, ray_aabb_intersect
+from .sampling import march, ray_aabb_intersect
 
 __all__ = ["RayBundleOutput", "ray_intervals", "render_rays"]
 
@@ -73,14 +73,17 @@ def render_rays(
     *,
     detach_semantic_weights: bool = False,
 ) -> RayBundleOutput:
-    """March rays from t_min to t_max in steps of ``step`` and composite the field's outputs.
+    """March rays from t_min to t_max and composite the field's outputs.
+
+    Samples are spaced as the field's warp asks (``field.warp.spacing``, :func:`scenelabel.sampling.march`):
+    equal steps of ``step``, or ``n_samples`` equal steps of disparity.
 
     Args:
         field: a SemanticField3D (callable as field(points, dirs) and field.semantics(points)).
         occupancy: callable points [..., 3] -> bool [...], True where the field may be non-empty.
         origins, directions: [n_rays, 3] (unit directions).
         t_min, t_max: [n_rays] from :func:`ray_intervals`.
-        step, n_samples: marching step and samples per ray.
+        step, n_samples: marching step (uniform spacing) and samples per ray.
         jitter: [n_rays] in [0, 1) (training) or None.
         background: [3] colour behind the scene, or None for black.
         with_rgb: evaluate colour (False: density and classes only, cheaper).
@@ -91,7 +94,8 @@ def render_rays(
     Returns:
         RayBundleOutput.
     """
-    t_starts, t_ends = march_uniform(t_min, t_max, step, n_samples, jitter)  # [n_rays, S]
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, step, n_samples, jitter)  # [n_rays, S]
     t_mids = 0.5 * (t_starts + t_ends)
     points = origins[:, None, :] + t_mids[..., None] * directions[:, None, :]  # [n_rays, S, 3]
     keep = (t_ends > t_starts) & occupancy(points)  # [n_rays, S]

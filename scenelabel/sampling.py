@@ -1,4 +1,4 @@
-"""Where to evaluate the field along rays: ray/AABB clipping, uniform marching, empty-space skipping.
+"""Where to evaluate the field along rays: ray/AABB clipping, uniform or disparity marching, empty-space skipping.
 
 Pure functions, plus :class:`OccupancyGrid`, a thin state holder (a bit grid over the scene box,
 refreshed from the field's density during training) whose lookup is a pure function.
@@ -15,6 +15,8 @@ from torch import nn
 __all__ = [
     "ray_aabb_intersect",
     "march_uniform",
+    "march_disparity",
+    "march",
     "occupied_at",
     "OccupancyGrid",
 ]
@@ -43,6 +45,13 @@ def ray_aabb_intersect(
     t_min = torch.minimum(t0, t1).amax(-1)
     t_max = torch.maximum(t0, t1).amin(-1)
     return t_min, t_max
+
+
+MIN_DISPARITY_T = 1e-6
+"""Disparity marching starts no closer than this (normalised units): 1 / t stays finite."""
+
+MIN_DISPARITY = 1e-30
+"""Disparities are clamped to at least this: an end at ``t_max = inf`` is 1e30, not inf (δ stays finite)."""
 
 
 def march_uniform(
@@ -75,6 +84,57 @@ def march_uniform(
     return t_starts, t_ends
 
 
+def march_disparity(
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Intervals from t_min to t_max in equal steps of disparity 1 / t (LLFF's ``lindisp``).
+
+    Interval ends sit at ``1 / t = (1 - s) / t_min + s / t_max`` with
+    ``s = min((k + u) / (n_samples - 1), 1)``, k = 0 .. n_samples - 1 and u in [0, 1) a per-ray
+    jitter (as :func:`march_uniform`, one interval more than the steps: the first starts at t_min,
+    the last ends at t_max). Ends are clamped to [t_min, t_max]. Near the camera the intervals are
+    short, far away long, as a pixel's footprint grows with distance.
+
+    Args:
+        t_min, t_max: [n_rays], ``t_min > 0`` (clamped to ``MIN_DISPARITY_T``; rays that miss
+            have t_max <= t_min: all intervals empty). ``t_max = inf`` gives 1 / t_max = 0; the
+            last end is then capped at ``1 / MIN_DISPARITY`` (finite).
+        n_samples: intervals per ray (>= 2 to reach t_max).
+        jitter: [n_rays] in [0, 1) or None.
+    Returns:
+        t_starts, t_ends: [n_rays, n_samples].
+    """
+    t_lo = t_min.clamp(min=MIN_DISPARITY_T)
+    t_max = torch.maximum(t_max, t_lo)
+    k = torch.arange(n_samples, dtype=t_min.dtype, device=t_min.device)
+    u = torch.zeros_like(t_min) if jitter is None else jitter
+    s = ((k[None, :] + u[:, None]) / max(n_samples - 1, 1)).clamp(max=1.0)  # [n_rays, n_samples]
+    inv = ((1.0 - s) / t_lo[:, None] + s / t_max[:, None]).clamp(min=MIN_DISPARITY)
+    t_ends = torch.minimum(torch.maximum(1.0 / inv, t_lo[:, None]), t_max[:, None])
+    t_starts = torch.cat([t_lo[:, None], t_ends[:, :-1]], dim=-1)
+    return t_starts, t_ends
+
+
+def march(
+    spacing: str,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    step: float,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`march_uniform` (``spacing="uniform"``, steps of ``step``) or :func:`march_disparity`
+    (``"disparity"``, ``step`` unused): the spacing a field's warp asks for (``warp.spacing``)."""
+    if spacing == "disparity":
+        return march_disparity(t_min, t_max, n_samples, jitter)
+    if spacing == "uniform":
+        return march_uniform(t_min, t_max, step, n_samples, jitter)
+    raise ValueError(f"unknown spacing {spacing!r}")
+
+
 def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Look up a boolean occupancy grid covering ``aabb`` at ``points`` (outside -> False).
 
@@ -94,28 +154,37 @@ def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) ->
 
 
 class OccupancyGrid(nn.Module):
-    """A [R, R, R] grid over the scene box marking cells that may hold density.
+    """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
 
     Each cell keeps an exponential moving average of the largest density seen at random points
     inside it; a cell is occupied when that density could make a marching step at least
-    ``alpha_threshold`` opaque. Until the first update every cell is occupied.
+    ``alpha_threshold`` opaque. Until the first update every cell is occupied. Cells live in
+    the warp's cube (:mod:`scenelabel.warps`): for a box warp they are boxes, for a forward warp
+    frustum slices that grow with depth.
     """
 
-    def __init__(self, aabb: torch.Tensor, resolution: int = 64, step: float = 0.01, alpha_threshold: float = 0.005):
+    def __init__(
+        self, warp: nn.Module, resolution: int = 64, step: float | torch.Tensor = 0.01, alpha_threshold: float = 0.005
+    ):
+        """``step``: the marching step through a cell (normalised units): a float, or [resolution]
+        per slice along the cube's third axis (disparity marching: steps grow with depth)."""
         super().__init__()
         self.resolution = resolution
-        self.register_buffer("aabb", aabb.clone().float())
+        self.warp = warp
+        self.register_buffer("cube", torch.tensor([[-1.0] * 3, [1.0] * 3]))
         self.register_buffer("density", torch.full((resolution,) * 3, float("inf")))
         self.register_buffer("bits", torch.ones((resolution,) * 3, dtype=torch.bool))
-        self.sigma_threshold = -math.log1p(-alpha_threshold) / step
+        # σ that makes one step alpha_threshold opaque: [1, 1, 1] or [1, 1, R], broadcast over the grid
+        threshold = -math.log1p(-alpha_threshold) / torch.as_tensor(step, dtype=torch.float32)
+        self.register_buffer("sigma_threshold", threshold.reshape(1, 1, -1), persistent=False)
 
     def cell_points(self, cells: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """One random point in each of ``cells`` (flat indices into the grid): [n, 3]."""
+        """One random point (normalised frame) in each of ``cells`` (flat indices into the grid): [n, 3]."""
         r = self.resolution
         idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1)
         u = torch.rand(idx.shape, generator=generator)
-        rel = (idx + u) / r
-        return (self.aabb[0].cpu() + rel * (self.aabb[1] - self.aabb[0]).cpu()).to(self.aabb.device)
+        unit = ((idx + u) / r * 2.0 - 1.0).to(self.cube.device)
+        return self.warp.inverse(unit)
 
     @torch.no_grad()
     def update(
@@ -147,7 +216,7 @@ class OccupancyGrid(nn.Module):
         self.bits = self.density > self.sigma_threshold
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        return occupied_at(self.bits, self.aabb, points)
+        return occupied_at(self.bits, self.cube, self.warp(points))
 
     @property
     def occupied_fraction(self) -> float:

@@ -20,7 +20,10 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Cameras", "Scene", "ClassMap"]
+__all__ = ["Cameras", "Scene", "ClassMap", "UNLABELLED_NAME"]
+
+#: Class name of the single channel of a build without labels (photometric only).
+UNLABELLED_NAME = "unlabelled"
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,33 @@ class Scene:
     def __len__(self) -> int:
         return len(self.cameras)
 
+    def scaled(self, factor: float) -> "Scene":
+        """This scene with world lengths multiplied by ``factor`` (camera centres, near/far, depths, aabb).
+
+        For inputs of arbitrary scale (COLMAP, SfM): ``factor`` = metres per input unit makes every
+        output metric. Rotations, intrinsics and images are unchanged. ``info["world_scale"]`` records
+        the factor (products of repeated calls).
+        """
+        factor = float(factor)
+        if not (np.isfinite(factor) and factor > 0):
+            raise InputError(f"scale must be a positive finite number, got {factor}", field="scale")
+        c2w = self.cameras.c2w.copy()
+        c2w[:, :3, 3] *= factor
+        cameras = Cameras(**{**vars(self.cameras), "c2w": c2w, "near": self.cameras.near * factor, "far": self.cameras.far * factor})
+        return Scene(
+            root=self.root,
+            cameras=cameras,
+            names=list(self.names),
+            images=self.images,
+            labels=self.labels,
+            depths=[None if d is None else d * np.float32(factor) for d in self.depths],
+            classes=dict(self.classes),
+            ignore_index=self.ignore_index,
+            aabb=None if self.aabb is None else np.asarray(self.aabb, np.float64) * factor,
+            frame_id=self.frame_id,
+            info={**self.info, "world_scale": self.info.get("world_scale", 1.0) * factor},
+        )
+
 
 @dataclass(frozen=True)
 class ClassMap:
@@ -179,6 +209,11 @@ class ClassMap:
     @property
     def num_classes(self) -> int:
         return len(self.ids)
+
+    @staticmethod
+    def unlabelled() -> "ClassMap":
+        """The one-channel map of a scene without labels: every surface is class 0, "unlabelled"."""
+        return ClassMap(ids=np.zeros(1, np.int64), names=(UNLABELLED_NAME,))
 
     @staticmethod
     def from_labels(

@@ -28,9 +28,10 @@ from .maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, iter_chunk
 from .postprocess import smooth_class_probs
 from .rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
 from .renderer import ray_intervals, render_rays
-from .sampling import OccupancyGrid, march_uniform
+from .sampling import OccupancyGrid, march
 from .scene import Cameras, ClassMap
 from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, ray_box_distances, scaled_cameras
+from .warps import BoxWarp, warp_from_dict
 
 __all__ = ["SemanticField", "PointQuery", "RayQuery", "RenderResult", "TRAIN_CAMERAS_KEY"]
 
@@ -80,6 +81,13 @@ class RenderResult:
     opacity: np.ndarray  # [H, W]
     probs: np.ndarray  # [H, W, C] (smoothed when smooth_sigma was given)
     label: np.ndarray  # [H, W] class ids; FREE / UNKNOWN where nothing was hit
+
+
+def _softmax64(logits: np.ndarray) -> np.ndarray:
+    """Softmax over the last axis in float64 ([..., C] -> [..., C], rows sum to 1)."""
+    z = logits.astype(np.float64)
+    z = np.exp(z - z.max(-1, keepdims=True))  # shifted by the row maximum: no overflow
+    return z / z.sum(-1, keepdims=True)
 
 
 def _as_array(value, name: str, last_dim: int | None) -> np.ndarray:
@@ -141,9 +149,10 @@ class SemanticField:
         config = config_from_dict(data["config"])
         class_map = ClassMap.from_dict(data["class_map"])
         aabb_n = torch.as_tensor(np.asarray(data["aabb_internal"]), dtype=torch.float32)
-        model = SemanticField3D(config.field, class_map.num_classes, aabb_n)
+        warp = warp_from_dict(data["warp"]) if "warp" in data else BoxWarp(aabb_n)  # before warps: the box
+        model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
         model.load_state_dict(data["model"])
-        grid = OccupancyGrid(aabb_n, config.sampling.grid_resolution)
+        grid = OccupancyGrid(warp, config.sampling.grid_resolution)
         grid.load_state_dict(data["occupancy"])
         meta = {k: v for k, v in data.items() if k not in ("model", "occupancy", "optimizer")}
         meta["config"] = config
@@ -171,17 +180,23 @@ class SemanticField:
     def _tensor(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, dtype=torch.float32, device=self.device)
 
-    @torch.no_grad()
     def _semantics_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
-        """σ (normalised units) [N] and class probs [N, C] at normalised points.
+        """σ (normalised units) [N] and class probs [N, C] float64 at normalised points.
 
         The network runs only where the occupancy grid may hold density (the grid is what
         training and rendering use too): elsewhere σ = 0 and the probabilities are uniform
         (no class evidence in space the field holds empty).
         """
+        sigmas, logits = self._sigma_logits_n(points_n, chunk)
+        return sigmas, _softmax64(logits)
+
+    @torch.no_grad()
+    def _sigma_logits_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+        """σ (normalised units) [N] float64 and class logits [N, C] float32 (:meth:`_semantics_n`
+        without the softmax; logits 0, i.e. uniform, where the grid holds space empty)."""
         n, c = len(points_n), self.class_map.num_classes
         sigmas_out = np.zeros(n)
-        probs_out = np.full((n, c), 1.0 / c)
+        logits_out = np.zeros((n, c), dtype=np.float32)
         for i in range(0, n, chunk):
             pts = self._tensor(points_n[i : i + chunk])
             keep = self.occupancy(pts)  # [n_chunk] bool
@@ -190,8 +205,8 @@ class SemanticField:
             sigmas, logits = self.model.semantics(pts[keep])
             rows = i + keep.nonzero()[:, 0].cpu().numpy()
             sigmas_out[rows] = sigmas.cpu().numpy()
-            probs_out[rows] = torch.softmax(logits.double(), -1).cpu().numpy()
-        return sigmas_out, probs_out
+            logits_out[rows] = logits.float().cpu().numpy()
+        return sigmas_out, logits_out
 
     def _inside(self, xyz: np.ndarray) -> np.ndarray:
         return np.all((xyz >= self.aabb[0]) & (xyz <= self.aabb[1]), axis=-1)
@@ -390,11 +405,15 @@ class SemanticField:
             rows = todo[start : start + chunk]
             o, d = self._tensor(origins_n[rows]), self._tensor(directions[rows])
             t_min, t_max = ray_intervals(o, d, self._aabb_n, self._tensor(near_n[rows]), self._tensor(far_n[rows]))
+            t_min, t_max = self.model.warp.clip(o, d, t_min, t_max)
             longest = float((t_max - t_min).max()) if len(rows) else 0.0
             if not longest > 0:
                 continue
-            n_samples = min(self._n_samples, math.ceil(longest / self._step_n) + 1)  # no empty tail
-            t_starts, t_ends = march_uniform(t_min, t_max, self._step_n, n_samples)  # [r, S]
+            spacing = self.model.warp.spacing
+            n_samples = self._n_samples
+            if spacing == "uniform":
+                n_samples = min(n_samples, math.ceil(longest / self._step_n) + 1)  # no empty tail
+            t_starts, t_ends = march(spacing, t_min, t_max, self._step_n, n_samples)  # [r, S]
             t_mids = (0.5 * (t_starts + t_ends)).double().cpu().numpy()
             points = origins_n[rows, None, :] + t_mids[..., None] * directions[rows, None, :]  # [r, S, 3]
             sigma_n = self._semantics_n(points.reshape(-1, 3))[0].reshape(t_mids.shape)  # [r, S]
@@ -452,11 +471,12 @@ class SemanticField:
             centres = origin + voxel_size * idx.reshape(-1, 3)  # [V, 3]
             inside = self._inside(centres)  # [V]
             pts = (centres[inside][:, None, :] + offsets[None]).reshape(-1, 3)
-            sig_n, sub_probs = self._semantics_n(self.frame.to_internal(pts))
+            sig_n, sub_logits = self._sigma_logits_n(self.frame.to_internal(pts))
             sig_n = sig_n.reshape(-1, len(offsets))  # [K, S], K voxels inside the bounds
             densest = sig_n.argmax(-1)  # [K]
             occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)  # [K]
-            p = sub_probs.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest]  # [K, C]
+            # only the densest sub-sample's distribution is kept: softmax just those
+            p = _softmax64(sub_logits.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest])
             block_label = np.full(len(centres), UNKNOWN, dtype=np.int16)
             block_occ = np.zeros(len(centres), dtype=np.float32)
             block_probs = np.zeros((len(centres), n_classes), dtype=np.uint8)
@@ -495,7 +515,15 @@ class SemanticField:
             probs=probs,
             confidence=confidence,
             unknown_rule="visibility" if cameras is not None else "bounds",
+            **self._scale_record(),
         )
+
+    def _scale_record(self) -> dict:
+        """The map's ``scale_source`` / ``units``: the input's own, or the input's times ``data.scale``."""
+        world_scale = float(self.meta.get("world_scale", 1.0))
+        if world_scale == 1.0:
+            return {}
+        return {"scale_source": f"input poses x {world_scale:g} (data.scale)", "units": "metre"}
 
     def _occluders_outside(self, cameras: Cameras, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
         """The field's surfaces that a map covering only the box [lo, hi] does not hold.

@@ -168,6 +168,25 @@ def _export_empty_band(tmp):
     return ["export", str(small_map(tmp)), str(tmp / "plan"), "--format", "nav2", "--z-min", "5", "--z-max", "6"]
 
 
+def _photos_that_do_not_register(tmp):
+    photos = tmp / "photos"
+    (photos / "images").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for i in range(3):  # unrelated noise: structure from motion registers none of them
+        Image.fromarray(rng.integers(0, 256, (96, 128, 3), dtype=np.uint8)).save(photos / "images" / f"{i}.png")
+    return build_args(photos)
+
+
+def _no_poses_one_photo(tmp):
+    (tmp / "photos" / "images").mkdir(parents=True)
+    Image.fromarray(np.zeros((18, 24, 3), np.uint8)).save(tmp / "photos" / "images" / "0.png")
+    return build_args(tmp / "photos")
+
+
+def _segmenter_spec_unknown(tmp):
+    return ["segment", str(toy(tmp)), "--model", "caffe:model.prototxt"]
+
+
 CASES = [
     Case("scene folder missing", _missing_folder, ("no_such_scene",)),
     Case("images/ empty", _empty_images, ("0 of 8 frames have an image file",)),
@@ -184,6 +203,9 @@ CASES = [
     Case("unknown config key", _unknown_config_key, ("stepz",)),
     Case("checkpoint from an incompatible version", _incompatible_checkpoint, ("checkpoint.pt", "not supported")),
     Case("output path not writable", _output_not_writable, ("a_file",)),
+    Case("photos only, too few register in SfM", _photos_that_do_not_register, ("registered only 0 of 3", "matcher=")),
+    Case("no poses and a single photo", _no_poses_one_photo, ("no poses found", "at least 2 photos")),
+    Case("unknown segmenter spec", _segmenter_spec_unknown, ("caffe",)),
     Case("export input neither a build nor a map", _export_unknown_source, ("photos", "neither a build folder")),
     Case("export --voxel-size of a map", _export_voxel_size_of_a_map, ("map.zarr", "--voxel-size")),
     Case("export --format ply to a non-.ply file", _export_ply_suffix, ("points.txt", ".ply")),

@@ -88,3 +88,69 @@ def test_export_user_errors_exit_2(box_map, tmp_path):
     assert proc.returncode == 2 and ".ply" in proc.stderr
     proc = run_cli("export", box_map, tmp_path / "plan", "--format", "nav2", "--z-min", "0.3", "--z-max", "0.1")
     assert proc.returncode == 2 and "z_min < z_max" in proc.stderr
+
+
+SEGMENTER_MODULE = '''
+import numpy as np
+
+
+class Halves:
+    """Left half of every photo is class 0, right half class 5."""
+
+    classes = {0: "left", 5: "right"}
+    ignore_index = None
+
+    def __call__(self, image):
+        ids = np.zeros(image.shape[:2], np.int64)
+        ids[:, image.shape[1] // 2 :] = 5
+        return ids
+
+
+segmenter = Halves()
+'''
+
+
+def test_build_with_segmenter_and_scale_records_units_in_every_export(tmp_path):
+    """A scene without labels: `build --segmenter` writes labels/ first; `--scale` makes the exports metric."""
+    scene = write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18)
+    for f in (scene / "labels").iterdir():
+        f.unlink()
+    (scene / "labels").rmdir()
+    (scene / "classes.json").unlink()
+    module = tmp_path / "my_segmenter.py"
+    module.write_text(SEGMENTER_MODULE)
+    out = tmp_path / "out"
+    proc = run_cli(
+        "build", scene, "--out", out, "--steps", "20", "--preset", "quick", "--quiet",
+        "--segmenter", f"python:{module}:segmenter", "--scale", "2",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote 8 masks" in proc.stdout and "left 50.0%, right 50.0%" in proc.stdout
+    assert len(list((scene / "labels").iterdir())) == 8
+    occ = OccupancyMap.from_zarr(out / "map.zarr")
+    assert occ.units == "metre" and "x 2 (data.scale)" in occ.scale_source
+    assert set(occ.classes) == {0, 5}
+    for fmt, path in (("ply", tmp_path / "points.ply"), ("nav2", tmp_path / "plan")):
+        proc = run_cli("export", out, path, "--format", fmt)
+        assert proc.returncode == 0, proc.stderr
+    header = (tmp_path / "points.ply").read_bytes().split(b"end_header")[0].decode()
+    assert "comment frame toy_world; units metre; scale input poses x 2 (data.scale)" in header
+    assert "# units: metre (scale: input poses x 2 (data.scale))" in (tmp_path / "plan.yaml").read_text()
+
+
+def test_segment_refuses_to_overwrite_and_sfm_stops_on_unrelated_photos(tmp_path):
+    scene = write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18)
+    module = tmp_path / "my_segmenter.py"
+    module.write_text(SEGMENTER_MODULE)
+    proc = run_cli("segment", scene, "--model", f"python:{module}:segmenter", "--quiet")
+    assert proc.returncode == 2 and "scenelabel: error:" in proc.stderr and "labels" in proc.stderr
+    photos = tmp_path / "photos"
+    (photos / "images").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    from PIL import Image
+
+    for i in range(3):
+        Image.fromarray(rng.integers(0, 256, (96, 128, 3), dtype=np.uint8)).save(photos / "images" / f"{i}.png")
+    proc = run_cli("sfm", photos)
+    assert proc.returncode == 2, proc.stderr
+    assert "registered only 0 of 3 images" in proc.stderr and "matcher='sequential'" in proc.stderr

@@ -2,7 +2,7 @@
 
 import pytest
 
-from scenelabel.config import PRESETS, config_from_dict, config_to_dict, preset
+from scenelabel.config import PRESETS, DataConfig, config_from_dict, config_to_dict, preset
 from scenelabel.errors import ConfigError
 
 
@@ -42,3 +42,33 @@ def test_unknown_keys_and_presets_are_errors():
 def test_unknown_choices_are_errors(overrides):
     with pytest.raises(ConfigError, match="choose one of|focal_gamma"):
         preset("fast", overrides)
+
+
+@pytest.mark.parametrize("downscale", [0, -2, 1.5, True, "2", None])
+def test_data_downscale_must_be_a_positive_integer(downscale):
+    with pytest.raises(ConfigError, match="data.downscale"):
+        DataConfig(downscale=downscale)
+
+
+@pytest.mark.parametrize("scale", [0, 0.0, -1, float("inf"), float("nan"), "1"])
+def test_data_scale_must_be_positive_finite(scale):
+    with pytest.raises(ConfigError, match="data.scale"):
+        DataConfig(scale=scale)
+
+
+def test_data_section_round_trips_and_rejects_unknown_keys():
+    config = config_from_dict({"data": {"downscale": 2, "scale": 0.5}})
+    assert config.data == DataConfig(downscale=2, scale=0.5)
+    assert config_from_dict(config_to_dict(config)) == config
+    assert preset("quick").data == DataConfig()  # defaults: downscale 1, scale None
+    assert DataConfig(downscale=4, scale=3).scale == 3
+    with pytest.raises(ConfigError, match="unknown data config key"):
+        config_from_dict({"data": {"downsample": 2}})
+
+
+def test_sampling_warp_choices():
+    for warp in ("auto", "box", "forward"):
+        assert preset("quick", {"sampling": {"warp": warp}}).sampling.warp == warp
+    assert preset("fast").sampling.warp == "auto"
+    with pytest.raises(ConfigError, match="choose one of"):
+        preset("fast", {"sampling": {"warp": "ndc"}})

@@ -254,7 +254,7 @@ def test_load_scene_unknown_folder_says_what_is_expected(tmp_path: Path) -> None
     with pytest.raises(InputError) as info:
         load_scene(tmp_path)
     message = str(info.value)
-    for expected in (str(tmp_path), "transforms.json", "poses_bounds.npy", "COLMAP", "not supported yet", "transforms_train.json"):
+    for expected in (str(tmp_path), "transforms.json", "poses_bounds.npy", "COLMAP", "structure from motion", "transforms_train.json"):
         assert expected in message
 
 

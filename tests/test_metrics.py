@@ -163,3 +163,33 @@ def test_boundary_f1_values():
     noisy[5, 3] = 1  # a speck: extra predicted boundary far from the true one lowers precision only
     f = boundary_f1(noisy, gt, tolerance=1)
     assert 0.8 < f < 1.0
+
+
+def _rot(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [k for k in range(3) if k != axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+def test_pose_errors_are_zero_up_to_a_similarity_and_see_a_known_perturbation():
+    from scenelabel.metrics import pose_centre_errors, pose_rotation_errors_deg
+
+    rng = np.random.default_rng(0)
+    n = 6
+    truth = np.tile(np.eye(4), (n, 1, 1))
+    for i in range(n):
+        truth[i, :3, :3] = _rot(0, rng.uniform(-1, 1)) @ _rot(1, rng.uniform(-1, 1)) @ _rot(2, rng.uniform(-1, 1))
+        truth[i, :3, 3] = rng.normal(size=3)
+    # the same rig in another world frame: rotated, scaled by 0.3 and shifted
+    g, scale, shift = _rot(2, 0.7) @ _rot(0, -0.4), 0.3, np.array([5.0, -2.0, 1.0])
+    est = truth.copy()
+    est[:, :3, :3] = g.T @ truth[:, :3, :3]
+    est[:, :3, 3] = scale * (truth[:, :3, 3] @ g) + shift
+    np.testing.assert_allclose(pose_rotation_errors_deg(truth, est), 0.0, atol=1e-5)
+    np.testing.assert_allclose(pose_centre_errors(truth, est), 0.0, atol=1e-9)
+    # camera 2 turned by 0.5 degrees about its own optical axis: the fit spreads a little, camera 2 dominates
+    est[2, :3, :3] = est[2, :3, :3] @ _rot(2, np.radians(0.5))
+    errors = pose_rotation_errors_deg(truth, est)
+    assert errors.argmax() == 2 and 0.3 < errors[2] <= 0.5 + 1e-9

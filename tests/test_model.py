@@ -44,7 +44,7 @@ def test_density_head_probabilities_are_density_shares():
     config = FieldConfig(resolutions=(8,), hidden=16, class_head="density", density_combine="sum")
     model = SemanticField3D(config, 4, AABB)
     pts = torch.rand(50, 3) * 2 - 1
-    out = model.trunk(model.encoding(model._unit(pts)))
+    out = model.trunk(model.encoding(model.warp(pts)))
     class_sigmas = torch.exp(out[:, :4] + config.density_bias).double()
     sigmas, logits = model.semantics(pts)
     torch.testing.assert_close(sigmas.double(), class_sigmas.sum(-1), rtol=1e-5, atol=0)

@@ -1,9 +1,21 @@
 """Build orchestration helpers: view split, default voxel size."""
 
-import pytest
+import json
+import shutil
+import warnings
 
+import numpy as np
+import pytest
+import torch
+
+from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.errors import InputError
-from scenelabel.pipeline import split_views
+from scenelabel.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
+from scenelabel.io import load_scene
+from scenelabel.pipeline import _cell_steps, choose_warp, split_views
+from scenelabel.scene import Cameras
+from scenelabel.synthetic import look_at, toy_scene_geometry, write_scene
+from scenelabel.warps import BoxWarp, ForwardWarp, warp_from_dict
 
 
 def test_every_eighth_view_held_out():
@@ -22,3 +34,137 @@ def test_too_few_views():
         split_views(1, 8)
     with pytest.raises(InputError, match="no training view"):
         split_views(2, 1)
+
+
+# ------------------------------------------------------------------ builds without labels, warps
+
+
+def _small_config(steps=40, holdout=4, **sampling):
+    config = preset("quick", {"sampling": {"n_steps": 48, "grid_resolution": 16, **sampling}})
+    config.train.steps = steps
+    config.train.batch_rays = 128
+    config.train.holdout = holdout
+    config.train.log_every = 10
+    config.output.write_map = False
+    config.output.write_renders = False
+    return config
+
+
+@pytest.fixture(scope="module")
+def small_toy(tmp_path_factory):
+    return write_toy_scene(tmp_path_factory.mktemp("pipeline_toy") / "scene", n_train=7, n_test=1, width=32, height=24)
+
+
+def _forward_c2ws_opengl(n=5):
+    """n OpenGL cameras side by side at y = -3, all looking +y at the toy scene (an LLFF-like rig)."""
+    xs = np.linspace(-0.4, 0.4, n)
+    return np.stack([look_at([x, -3.0, 1.0 + 0.05 * np.sin(3 * i)], [0.3 * x, 0.0, 0.2]) for i, x in enumerate(xs)])
+
+
+def _frame_and_box(cameras, explicit=None):
+    aabb, _ = aabb_from_cameras(cameras, explicit)
+    frame = SceneFrame.from_aabb(aabb)
+    return frame, torch.as_tensor(frame.to_internal(aabb), dtype=torch.float32)
+
+
+def test_build_without_labels_is_photometric_only(small_toy, tmp_path):
+    scene = tmp_path / "scene"
+    shutil.copytree(small_toy, scene)
+    shutil.rmtree(scene / "labels")
+    (scene / "classes.json").unlink()
+    transforms = json.loads((scene / "transforms.json").read_text())
+    for frame in transforms["frames"]:
+        del frame["label_path"]
+    (scene / "transforms.json").write_text(json.dumps(transforms))
+    with pytest.warns(UserWarning, match="no labels"):
+        result = build(scene, tmp_path / "out", _small_config(steps=30), progress=False)
+    assert result.field.classes == {0: "unlabelled"}
+    field = SemanticField.load(tmp_path / "out", device="cpu")
+    assert field.classes == {0: "unlabelled"} and field.class_ids.tolist() == [0]
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["n_test_views"] == 2 and np.isfinite(metrics["psnr"])
+    assert "miou" not in metrics and "per_class_iou" not in metrics
+    assert metrics["classes"] == {"0": "unlabelled"}
+    assert all(np.isfinite(h["loss"]) for h in metrics["history"])
+    q = field.query_points(np.array([[0.0, 0.0, 0.1], [0.4, 0.2, 0.2]]))
+    np.testing.assert_allclose(q.probs[np.isin(q.label, [0])].sum(-1), 1.0)
+    assert set(q.label.tolist()) <= {0, -1, -2}
+
+
+def test_build_with_labels_does_not_warn(small_toy, tmp_path):
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message="no labels")
+        result = build(small_toy, tmp_path / "out", _small_config(steps=20), progress=False)
+    assert 0 not in result.field.classes and "miou" in result.metrics
+
+
+def test_choose_warp_on_an_orbit(small_toy):
+    scene = load_scene(small_toy)
+    frame, aabb_n = _frame_and_box(scene.cameras, scene.aabb)
+    box = choose_warp("box", scene.cameras, frame, aabb_n)
+    assert isinstance(box, BoxWarp) and torch.equal(box.aabb, aabb_n)
+    assert isinstance(choose_warp("auto", scene.cameras, frame, aabb_n), BoxWarp)
+    with pytest.raises(InputError, match="not forward-facing"):
+        choose_warp("forward", scene.cameras, frame, aabb_n)
+    steps = _cell_steps(box, aabb_n, _small_config())
+    assert isinstance(steps, float)
+    assert steps == pytest.approx(float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / _small_config().sampling.n_steps)
+
+
+def test_choose_warp_on_a_forward_facing_rig():
+    c2w_cv = _forward_c2ws_opengl() @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
+    cams = Cameras.create(c2w_cv, 30.0, 30.0, 16.0, 12.0, 32, 24, near=1.5, far=5.0)
+    frame, aabb_n = _frame_and_box(cams)
+    config = _small_config()
+    for kind in ("auto", "forward"):
+        warp = choose_warp(kind, cams, frame, aabb_n)
+        assert isinstance(warp, ForwardWarp) and warp.spacing == "disparity"
+        again = warp_from_dict(json.loads(json.dumps(warp.to_dict())))
+        assert isinstance(again, ForwardWarp)
+        for key in ("centre", "rotation", "tan_xy", "inv_range"):
+            torch.testing.assert_close(getattr(again, key), getattr(warp, key), atol=0, rtol=1e-6)
+        # the warp holds every training frustum (normalised frame)
+        near, far = near_far_or_fallback(cams)
+        pts_n = torch.as_tensor(frame.to_internal(frustum_points(cams, near, far)), dtype=torch.float32)
+        assert bool((warp(pts_n).abs() <= 1.0).all())
+        # near / far scaled into the normalised frame
+        assert warp.to_dict()["near"] < 1.5 * frame.scale and warp.to_dict()["far"] > 5.0 * frame.scale * 0.99
+    assert isinstance(choose_warp("box", cams, frame, aabb_n), BoxWarp)
+    # per-slice steps grow with depth and sum to (about) a ray from near to far
+    steps = _cell_steps(warp, aabb_n, config)
+    r, n_steps = config.sampling.grid_resolution, config.sampling.n_steps
+    assert steps.shape == (r,) and torch.all(steps[1:] > steps[:-1]) and torch.all(steps > 0)
+    inv_near, inv_far = warp.inv_range.tolist()
+    t_mid = 1.0 / (inv_near - ((torch.arange(r) + 0.5) / r) * (inv_near - inv_far))
+    torch.testing.assert_close(steps, t_mid**2 * (inv_near - inv_far) / n_steps, rtol=1e-5, atol=0)
+
+
+@pytest.fixture(scope="module")
+def forward_scene(tmp_path_factory):
+    return write_scene(tmp_path_factory.mktemp("forward") / "scene", toy_scene_geometry(), _forward_c2ws_opengl(5), 32, 24)
+
+
+def test_forward_warp_build_loads_and_answers(forward_scene, tmp_path):
+    config = _small_config(steps=30, holdout=4, warp="forward")
+    result = build(forward_scene, tmp_path / "out", config, progress=False)
+    assert all(np.isfinite(h["loss"]) for h in result.metrics["history"])
+    assert np.isfinite(result.metrics["psnr"])
+    field = SemanticField.load(tmp_path / "out", device="cpu")
+    assert isinstance(field.model.warp, ForwardWarp) and isinstance(field.occupancy.warp, ForwardWarp)
+    assert field.meta["warp"]["kind"] == "forward" and field.config.sampling.warp == "forward"
+    rng = np.random.default_rng(0)
+    lo, hi = field.aabb
+    pts = np.concatenate([rng.uniform(lo, hi, (300, 3)), [[0.0, 0.0, 0.1], [0.0, -3.0, 1.0], [50.0, 50.0, 50.0]]])
+    q = field.query_points(pts)
+    for name in ("density", "occupancy", "probs"):
+        assert np.isfinite(getattr(q, name)).all(), name
+    assert np.all(q.density >= 0)
+    inside = np.all((pts >= lo) & (pts <= hi), -1)
+    np.testing.assert_allclose(q.probs[inside].sum(-1), 1.0, atol=1e-9)
+    scene = load_scene(forward_scene)
+    out = field.render_camera(scene.cameras, 1)
+    assert out.rgb.shape == (24, 32, 3)
+    for name in ("rgb", "depth", "opacity", "probs"):
+        assert np.isfinite(getattr(out, name)).all(), name
+    r = field.query_rays(np.array([[0.0, -3.0, 1.0]]), np.array([[0.0, 1.0, -0.25]]))
+    assert np.isfinite(r.depth).all() and np.isfinite(r.rgb).all()

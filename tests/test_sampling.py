@@ -1,9 +1,20 @@
 """Ray/AABB clipping, uniform marching and the occupancy grid, against naive references."""
 
 import numpy as np
+import pytest
 import torch
 
-from scenelabel.sampling import OccupancyGrid, march_uniform, occupied_at, ray_aabb_intersect
+from scenelabel.sampling import (
+    MIN_DISPARITY,
+    MIN_DISPARITY_T,
+    OccupancyGrid,
+    march,
+    march_disparity,
+    march_uniform,
+    occupied_at,
+    ray_aabb_intersect,
+)
+from scenelabel.warps import BoxWarp, ForwardWarp
 
 
 def naive_slab(o, d, lo, hi):
@@ -61,7 +72,7 @@ def test_occupied_at_indexing_and_outside():
 
 def test_grid_update_marks_dense_cells_only():
     aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
-    grid = OccupancyGrid(aabb, resolution=8, step=0.01, alpha_threshold=0.01)
+    grid = OccupancyGrid(BoxWarp(aabb), resolution=8, step=0.01, alpha_threshold=0.01)
     assert grid.occupied_fraction == 1.0  # before the first update
 
     def density(p):  # a dense ball of radius 0.5
@@ -71,3 +82,171 @@ def test_grid_update_marks_dense_cells_only():
     assert grid(torch.zeros(1, 3)).item()
     assert not grid(torch.tensor([[0.9, 0.9, 0.9]])).item()
     assert 0 < grid.occupied_fraction < 0.2
+
+
+# ------------------------------------------------------------------ disparity marching, march()
+
+
+def naive_disparity(t_min, t_max, n, u):
+    """Float64 loop of march_disparity's docstring: ends at 1/t = (1-s)/t_min + s/t_max,
+    s = min((k+u)/(n-1), 1), clamped to [t_min, t_max]; the first interval starts at t_min (clamped
+    to MIN_DISPARITY_T)."""
+    t_lo = max(t_min, MIN_DISPARITY_T)
+    t_hi = max(t_max, t_lo)
+    starts, ends = np.zeros(n), np.zeros(n)
+    prev = t_lo
+    for k in range(n):
+        s = min((k + u) / max(n - 1, 1), 1.0)
+        inv = max((1 - s) / t_lo + (0.0 if np.isinf(t_hi) else s / t_hi), MIN_DISPARITY)
+        end = min(max(1.0 / inv, t_lo), t_hi)
+        starts[k], ends[k] = prev, end
+        prev = end
+    return starts, ends
+
+
+def test_march_disparity_matches_naive_loop():
+    rng = np.random.default_rng(0)
+    t_min = np.concatenate([rng.uniform(0.05, 2.0, 40), [0.3, 1.0, 2.0, 0.5]])
+    t_max = np.concatenate([t_min[:40] + rng.uniform(0.0, 20.0, 40), [0.3, 0.5, 1e4, 0.5001]])  # equal, miss, long, short
+    u = rng.uniform(0, 1, len(t_min))
+    u[:5] = 0.0
+    for n in (1, 2, 7, 64):
+        for jitter in (None, u):
+            t_starts, t_ends = march_disparity(
+                torch.tensor(t_min), torch.tensor(t_max), n, None if jitter is None else torch.tensor(jitter)
+            )
+            assert t_starts.shape == t_ends.shape == (len(t_min), n)
+            for i in range(len(t_min)):
+                ref_s, ref_e = naive_disparity(t_min[i], t_max[i], n, 0.0 if jitter is None else jitter[i])
+                np.testing.assert_allclose(t_starts[i].numpy(), ref_s, rtol=1e-12, atol=0)
+                np.testing.assert_allclose(t_ends[i].numpy(), ref_e, rtol=1e-12, atol=0)
+
+
+def test_march_disparity_intervals_are_contiguous_ordered_and_within_range():
+    g = torch.Generator().manual_seed(1)
+    t_min = torch.rand(300, generator=g) * 2 + 0.01
+    t_max = t_min + torch.rand(300, generator=g) * 50
+    jitter = torch.rand(300, generator=g)
+    for n in (3, 33, 193):
+        for j in (None, jitter):
+            t_starts, t_ends = march_disparity(t_min, t_max, n, j)
+            assert torch.all(t_starts[:, 0] == t_min)  # the first interval starts at t_min
+            assert torch.all(t_starts[:, 1:] == t_ends[:, :-1])  # contiguous
+            # non-negative lengths within [t_min, t_max] (ends are clamped: float32's 1 / (1 / t_min)
+            # can round just below t_min)
+            assert torch.all(t_ends >= t_starts)
+            assert torch.all(t_ends <= t_max[:, None]) and torch.all(t_starts >= t_min[:, None])
+            torch.testing.assert_close(t_ends[:, -1], t_max)  # the last end reaches t_max
+            # n - 1 equal steps of disparity between consecutive ends (before the cut at t_max)
+            inv = 1.0 / t_ends.double()
+            steps = (inv[:, 1:] - inv[:, :-1])[:, :-1]
+            expected = ((1.0 / t_max.double() - 1.0 / t_min.double()) / (n - 1))[:, None].expand_as(steps)
+            torch.testing.assert_close(steps, expected, rtol=1e-4, atol=1e-6)
+            # lengths grow with depth (a pixel's footprint does), before the cut at t_max
+            lengths = (t_ends - t_starts)[:, 1:-1]
+            assert torch.all(lengths[:, 1:] >= lengths[:, :-1] * (1 - 1e-5))
+
+
+def test_march_disparity_covers_t_min_to_t_max():
+    """n intervals, n - 1 equal disparity steps: the first starts at t_min, the last ends at t_max."""
+    t_min, t_max = torch.tensor([1.0, 0.5, 1.0]), torch.tensor([4.0, 0.9, 100.0])
+    for jitter in (None, torch.tensor([0.3, 0.9, 0.5])):
+        t_starts, t_ends = march_disparity(t_min, t_max, 10, jitter)
+        torch.testing.assert_close(t_starts[:, 0], t_min)
+        torch.testing.assert_close(t_ends[:, -1], t_max)
+        torch.testing.assert_close((t_ends - t_starts).sum(-1), t_max - t_min)
+        assert torch.all(t_ends >= t_starts)  # ends clamped to [t_min, t_max]: no negative length
+
+
+def test_march_disparity_far_infinity_and_near_zero_stay_finite():
+    inf = float("inf")
+    t_min = torch.tensor([0.5, 0.0, 0.0, 1e-9, 2.0])
+    t_max = torch.tensor([inf, 3.0, inf, 1.0, inf])
+    for jitter in (None, torch.tensor([0.0, 0.5, 0.99, 0.25, 0.9])):
+        t_starts, t_ends = march_disparity(t_min, t_max, 16, jitter)
+        assert torch.isfinite(t_starts).all() and torch.isfinite(t_ends).all()
+        assert torch.all(t_starts[:, 1:] == t_ends[:, :-1]) and torch.all(t_ends >= t_starts)
+        # t_min is clamped to MIN_DISPARITY_T: no 1/0
+        assert torch.all(t_starts[:, 0] == t_min.clamp(min=MIN_DISPARITY_T))
+        # with t_max = inf the last end is 1 / MIN_DISPARITY: huge, finite
+        far_inf = torch.isinf(t_max)
+        torch.testing.assert_close(t_ends[far_inf, -1], torch.full((3,), 1.0 / MIN_DISPARITY), rtol=1e-6, atol=0)
+
+
+def test_march_disparity_rays_that_miss_have_empty_intervals():
+    t_min = torch.tensor([2.0, 1.0, 0.0])
+    t_max = torch.tensor([1.0, 1.0, -1.0])
+    for jitter in (None, torch.tensor([0.3, 0.7, 0.1])):
+        t_starts, t_ends = march_disparity(t_min, t_max, 8, jitter)
+        assert torch.all(t_ends == t_starts)
+        assert torch.isfinite(t_ends).all()
+
+
+def test_march_dispatches_on_spacing():
+    g = torch.Generator().manual_seed(4)
+    t_min = torch.rand(20, generator=g) + 0.1
+    t_max = t_min + torch.rand(20, generator=g) * 3
+    jitter = torch.rand(20, generator=g)
+    for j in (None, jitter):
+        for got, ref in (
+            (march("uniform", t_min, t_max, 0.1, 40, j), march_uniform(t_min, t_max, 0.1, 40, j)),
+            (march("disparity", t_min, t_max, 0.1, 40, j), march_disparity(t_min, t_max, 40, j)),
+        ):
+            torch.testing.assert_close(got[0], ref[0], atol=0, rtol=0)
+            torch.testing.assert_close(got[1], ref[1], atol=0, rtol=0)
+    with pytest.raises(ValueError, match="unknown spacing"):
+        march("lindisp", t_min, t_max, 0.1, 40)
+
+
+# ------------------------------------------------------------------ occupancy grid over a forward warp
+
+
+def _forward_warp():
+    c, s = np.cos(0.3), np.sin(0.3)
+    rotation = np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+    return ForwardWarp(np.array([0.1, -0.2, 0.05]), rotation, [0.8, 0.6], 0.2, 4.0)
+
+
+def test_forward_grid_cell_points_lie_in_their_cells():
+    r = 8
+    grid = OccupancyGrid(_forward_warp(), resolution=r, step=0.01)
+    cells = torch.arange(r**3)
+    pts = grid.cell_points(cells, torch.Generator().manual_seed(0))
+    assert pts.shape == (r**3, 3) and torch.isfinite(pts).all()
+    unit = grid.warp(pts).double()
+    idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).double()
+    lo, hi = idx / r * 2 - 1, (idx + 1) / r * 2 - 1
+    tol = 1e-4
+    assert torch.all(unit >= lo - tol) and torch.all(unit <= hi + tol)
+    # away from the cell faces the index is exact
+    found = ((unit + 1) / 2 * r).floor()
+    clear = ((unit - lo).abs() > tol) & ((unit - hi).abs() > tol)
+    assert clear.all(-1).float().mean() > 0.95
+    assert torch.all((found == idx) | ~clear)
+    # the lookup sees the same cells: mark one cell, only its points are occupied
+    grid.bits = torch.zeros((r,) * 3, dtype=torch.bool)
+    grid.bits[2, 5, 7] = True
+    cell = 2 * r * r + 5 * r + 7
+    inner = grid.cell_points(torch.full((50,), cell), torch.Generator().manual_seed(1))
+    assert grid(inner).float().mean() > 0.95
+    others = grid.cell_points(torch.tensor([c for c in range(r**3) if c != cell]), torch.Generator().manual_seed(2))
+    assert grid(others).float().mean() < 0.01
+
+
+def test_forward_grid_per_slice_step_gives_per_slice_threshold():
+    r = 8
+    steps = torch.linspace(0.01, 0.5, r)  # disparity marching: steps grow with depth (slice index)
+    alpha = 0.01
+    grid = OccupancyGrid(_forward_warp(), resolution=r, step=steps, alpha_threshold=alpha)
+    thresholds = -np.log1p(-alpha) / steps.double().numpy()
+    np.testing.assert_allclose(grid.sigma_threshold.reshape(-1).numpy(), thresholds, rtol=1e-6)
+    sigma = float(np.sqrt(thresholds[0] * thresholds[-1]))  # above the far slices' threshold, below the near ones'
+    assert thresholds[-1] < sigma < thresholds[0]
+    grid.update(lambda p: torch.full((len(p),), sigma), decay=0.0, generator=torch.Generator().manual_seed(0))
+    expected = torch.tensor(sigma > thresholds)  # [r] per depth slice
+    assert expected[-1] and not expected[0]
+    assert torch.equal(grid.bits, expected.reshape(1, 1, r).expand(r, r, r))
+    # a scalar step is one threshold for every slice
+    flat = OccupancyGrid(_forward_warp(), resolution=r, step=0.05, alpha_threshold=alpha)
+    flat.update(lambda p: torch.full((len(p),), sigma), decay=0.0, generator=torch.Generator().manual_seed(0))
+    assert bool(flat.bits.all()) == (sigma > -np.log1p(-alpha) / 0.05) and flat.bits.unique().numel() == 1

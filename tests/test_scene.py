@@ -57,3 +57,83 @@ def test_cameras_shape_checks_and_indexing():
     assert np.all(np.isnan(cams.near))
     with pytest.raises(InputError, match="c2w"):
         Cameras.create(np.eye(3), 1, 1, 1, 1, 1, 1)
+
+
+def _scene(aabb=True):
+    from pathlib import Path
+
+    from scenelabel.scene import Scene
+
+    rng = np.random.default_rng(0)
+    c2w = np.stack([np.eye(4)] * 3)
+    c2w[:, :3, 3] = rng.normal(size=(3, 3))
+    c2w[1, :3, :3] = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    cams = Cameras.create(c2w, [10.0, 11, 12], 10.0, 5.0, 4.0, 10, 8, distortion=[0.1, 0, 0, 0], near=[0.5, 0.6, np.nan], far=[4.0, 5.0, np.nan])
+    images = [rng.uniform(size=(8, 10, 3)).astype(np.float32) for _ in range(3)]
+    labels = [np.zeros((8, 10), np.int64), None, np.ones((8, 10), np.int64)]
+    depths = [rng.uniform(1, 3, (8, 10)).astype(np.float32), None, rng.uniform(1, 3, (8, 10)).astype(np.float32)]
+    return Scene(
+        root=Path("/nowhere"),
+        cameras=cams,
+        names=["a", "b", "c"],
+        images=images,
+        labels=labels,
+        depths=depths,
+        classes={0: "floor", 1: "wall"},
+        ignore_index=255,
+        aabb=np.array([[-1.0, -2, -3], [1, 2, 3]]) if aabb else None,
+        frame_id="lab",
+        info={"source": "test"},
+    )
+
+
+def test_scene_scaled_multiplies_lengths_only():
+    scene = _scene()
+    before_c2w = scene.cameras.c2w.copy()
+    scaled = scene.scaled(2.0)
+    np.testing.assert_array_equal(scaled.cameras.centres, 2.0 * scene.cameras.centres)
+    np.testing.assert_array_equal(scaled.cameras.c2w[:, :3, :3], scene.cameras.c2w[:, :3, :3])
+    np.testing.assert_array_equal(scaled.cameras.c2w[:, 3], scene.cameras.c2w[:, 3])
+    np.testing.assert_array_equal(scaled.cameras.near, 2.0 * scene.cameras.near)  # NaN stays NaN
+    np.testing.assert_array_equal(scaled.cameras.far, 2.0 * scene.cameras.far)
+    for name in ("fx", "fy", "cx", "cy", "width", "height", "distortion"):
+        np.testing.assert_array_equal(getattr(scaled.cameras, name), getattr(scene.cameras, name))
+    for a, b in zip(scaled.images, scene.images):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(scaled.labels, scene.labels):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+    for a, b in zip(scaled.depths, scene.depths):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert a.dtype == np.float32
+            np.testing.assert_allclose(a, 2.0 * b, rtol=1e-7)
+    np.testing.assert_array_equal(scaled.aabb, 2.0 * scene.aabb)
+    assert scaled.names == scene.names and scaled.classes == scene.classes
+    assert scaled.ignore_index == 255 and scaled.frame_id == "lab" and scaled.root == scene.root
+    assert scaled.info == {"source": "test", "world_scale": 2.0}
+    # the original is untouched
+    np.testing.assert_array_equal(scene.cameras.c2w, before_c2w)
+    assert "world_scale" not in scene.info and scene.aabb[1, 2] == 3.0
+    # repeated calls multiply
+    twice = scaled.scaled(0.25)
+    assert twice.info["world_scale"] == 0.5
+    np.testing.assert_allclose(twice.cameras.centres, 0.5 * scene.cameras.centres)
+    np.testing.assert_allclose(twice.aabb, 0.5 * scene.aabb)
+    assert _scene(aabb=False).scaled(3.0).aabb is None
+
+
+@pytest.mark.parametrize("factor", [0.0, -1.0, float("nan"), float("inf"), -float("inf")])
+def test_scene_scaled_rejects_bad_factors(factor):
+    with pytest.raises(InputError, match="scale must be a positive finite number"):
+        _scene().scaled(factor)
+
+
+def test_unlabelled_class_map():
+    cm = ClassMap.unlabelled()
+    assert cm.ids.tolist() == [0] and cm.names == ("unlabelled",) and cm.num_classes == 1
+    assert cm.ignore_index is None
+    np.testing.assert_array_equal(cm.ids_from_channels(np.array([0, -1, -2])), [0, -1, -2])
+    again = ClassMap.from_dict(cm.to_dict())
+    assert again.ids.tolist() == [0] and again.names == ("unlabelled",) and again.ignore_index is None

@@ -12,6 +12,7 @@ from torch import nn
 
 from ..config import FieldConfig
 from ..errors import ConfigError
+from ..warps import BoxWarp
 from .encodings import DenseGrid, Positional, TriPlane, sh_directions
 
 __all__ = ["SemanticField3D", "build_encoding", "trunc_exp", "combine_class_densities"]
@@ -99,11 +100,12 @@ class SemanticField3D(nn.Module):
     NeRF's skip connection when ``skip_layer`` is set (:class:`SkipMLP`).
     """
 
-    def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor):
+    def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor, warp: nn.Module | None = None):
         super().__init__()
         self.config = config
         self.num_classes = num_classes
         self.register_buffer("aabb", aabb.clone().float())
+        self.warp = BoxWarp(aabb) if warp is None else warp  # normalised frame -> the encoding's [-1, 1]^3
         self.encoding = build_encoding(config)
         h = config.hidden
         self._n_density = num_classes if config.class_head == "density" else 1
@@ -121,17 +123,23 @@ class SemanticField3D(nn.Module):
         ids = {id(p) for p in self.encoding.parameters()}
         return [p for p in self.parameters() if id(p) not in ids]
 
-    def _unit(self, points: torch.Tensor) -> torch.Tensor:
-        return (points - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2.0 - 1.0
-
     def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """points [n, 3] -> σ [n], features h [n, hidden], per-class raw densities s [n, C] or None."""
-        out = self.trunk(self.encoding(self._unit(points)))
+        """points [n, 3] -> σ [n], features h [n, hidden], per-class raw densities s [n, C] or None.
+
+        Points the warp maps outside [-1, 1]^3 (only a forward warp has such points inside the
+        scene box: behind or beside its reference frustum) have σ = 0.
+        """
+        unit = self.warp(points)
+        out = self.trunk(self.encoding(unit))
         raw, h = out[:, : self._n_density], F.relu(out[:, self._n_density :])
         if self.class_head is not None:
-            return trunc_exp(raw[:, 0] + self.config.density_bias), h, None
-        class_sigmas = trunc_exp(raw + self.config.density_bias)  # [n, C]
-        return combine_class_densities(class_sigmas, self.config.density_combine), h, raw
+            sigmas = trunc_exp(raw[:, 0] + self.config.density_bias)
+        else:
+            class_sigmas = trunc_exp(raw + self.config.density_bias)  # [n, C]
+            sigmas = combine_class_densities(class_sigmas, self.config.density_combine)
+        if self.warp.kind != "box":
+            sigmas = torch.where((unit.abs() <= 1.0).all(-1), sigmas, torch.zeros_like(sigmas))
+        return sigmas, h, (None if self.class_head is not None else raw)
 
     def _class_logits(self, h: torch.Tensor, raw: torch.Tensor | None) -> torch.Tensor:
         return self.class_head(h) if self.class_head is not None else raw

@@ -5,7 +5,11 @@
 - ``transforms.json`` present -> :func:`scenelabel.io.transforms_json.load_transforms`
   (nerfstudio / instant-ngp; a path to any transforms-style ``.json`` file works too);
 - else ``poses_bounds.npy`` present -> :func:`scenelabel.io.llff.load_llff`;
-- else InputError. (COLMAP ``sparse/0`` and images-only folders are a later issue.)
+- else a COLMAP sparse model, ``sparse/0/`` or ``sparse/cameras.(bin|txt)`` ->
+  :func:`scenelabel.io.colmap.load_colmap`;
+- else at least 2 photos in ``images/`` -> structure from motion (:func:`scenelabel.sfm.run_sfm`,
+  pycolmap; the model is cached in ``sparse/0/`` so the next load reads it) then ``load_colmap``;
+- else InputError.
 
 Every loader returns a :class:`scenelabel.Scene` in the conventions of docs/conventions.md (c2w in
 OpenCV camera axes, the input's world frame and units, images float32 RGB in [0, 1], labels int64
@@ -16,16 +20,18 @@ photometrically only) and ``classes.json`` (required when there are labels).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from ..errors import InputError
 from ..scene import Scene
-from .common import check_downscale
+from .colmap import SPARSE_FOLDER, find_sparse_dir, load_colmap
+from .common import check_downscale, list_images
 from .label_map import LABEL_MAP_FILE, apply_label_map, read_label_map
 from .llff import POSES_BOUNDS_FILE, load_llff
 from .transforms_json import TRANSFORMS_FILE, load_transforms
 
-__all__ = ["load_scene", "load_transforms", "load_llff", "read_label_map", "apply_label_map"]
+__all__ = ["load_scene", "load_transforms", "load_llff", "load_colmap", "read_label_map", "apply_label_map"]
 
 
 def load_scene(path: str | Path, downscale: int = 1) -> Scene:
@@ -33,6 +39,8 @@ def load_scene(path: str | Path, downscale: int = 1) -> Scene:
 
     Args:
         path: the scene folder, or a transforms ``.json`` / ``poses_bounds.npy`` file inside one.
+            A folder with a COLMAP ``sparse/`` model (and none of those files) loads with
+            :func:`scenelabel.io.colmap.load_colmap`.
         downscale: integer factor (>= 1) to shrink images, labels, depths and intrinsics by.
     Returns:
         the Scene, ``info["format"]`` naming the format read; labels and classes in the target
@@ -63,10 +71,19 @@ def _load_poses_format(path: str | Path, downscale: int) -> Scene:
         return load_transforms(path, downscale)
     if (path / POSES_BOUNDS_FILE).is_file():
         return load_llff(path, downscale)
+    if find_sparse_dir(path) is not None:
+        return load_colmap(path, downscale)
+    if (path / "images").is_dir() and len(list_images(path / "images")) >= 2:
+        from ..sfm import run_sfm  # lazy: pycolmap's mapper only when a folder needs it
+
+        result = run_sfm(path)  # caches sparse/0/ in the folder, or raises InputError (too few registered)
+        warnings.warn(f"no poses in {path}: {result.summary()}", stacklevel=3)
+        return load_colmap(path, downscale)
     others = sorted(p.name for p in path.glob("transforms*.json"))
     hint = f"; found {', '.join(others)}: pass that file's path to load it" if others else ""
     raise InputError(
-        f"no poses found: expected {TRANSFORMS_FILE} (nerfstudio / instant-ngp) or {POSES_BOUNDS_FILE} (LLFF) "
-        f"in this folder (COLMAP sparse models and images-only folders are not supported yet){hint}",
+        f"no poses found: expected {TRANSFORMS_FILE} (nerfstudio / instant-ngp), {POSES_BOUNDS_FILE} (LLFF), a "
+        f"COLMAP sparse model ({SPARSE_FOLDER}/0/ or {SPARSE_FOLDER}/ with cameras, images, points3D .bin/.txt) "
+        f"or at least 2 photos in images/ (poses from structure from motion) in this folder{hint}",
         path,
     )

@@ -31,6 +31,7 @@ import numpy as np
 from PIL import Image
 
 from ..errors import InputError
+from ..scene import Cameras, Scene
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -485,3 +486,22 @@ def read_view(
             label = np.ascontiguousarray(resize_nearest(label, *target))
     depth = None if view.depth is None else read_depth(view.depth, file_size, target)
     return image, label, depth
+
+
+def scene_from_views(
+    root: Path, cameras: Cameras, files: list[ViewFiles], views: list[tuple], vocabulary: ClassesFile, info: dict
+) -> Scene:
+    """A Scene (no explicit aabb, frame "world") from per-view files and what :func:`read_view` read."""
+    return Scene(
+        root=root,
+        cameras=cameras,
+        names=[f.name for f in files],
+        images=[v[0] for v in views],
+        labels=[v[1] for v in views],
+        depths=[v[2] for v in views],
+        classes=dict(vocabulary.classes),
+        ignore_index=vocabulary.ignore_index,
+        aabb=None,
+        frame_id="world",
+        info=info,
+    )

@@ -41,6 +41,7 @@ from .common import (
     read_view,
     scaled_size,
     scene_classes,
+    scene_from_views,
 )
 
 __all__ = ["POSES_BOUNDS_FILE", "llff_to_opencv", "read_poses_bounds", "choose_image_folder", "load_llff"]
@@ -245,16 +246,4 @@ def load_llff(path: str | Path, downscale: int = 1) -> Scene:
         "labelled_views": sum(v[1] is not None for v in views),
         "class_colors": dict(vocabulary.colors),
     }
-    return Scene(
-        root=root,
-        cameras=cameras,
-        names=[f.name for f in files],
-        images=[v[0] for v in views],
-        labels=[v[1] for v in views],
-        depths=[None] * len(views),
-        classes=dict(vocabulary.classes),
-        ignore_index=vocabulary.ignore_index,
-        aabb=None,
-        frame_id="world",
-        info=info,
-    )
+    return scene_from_views(root, cameras, files, views, vocabulary, info)
