@@ -45,7 +45,7 @@ import math
 import shutil
 import time
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -381,20 +381,8 @@ def run_sfm(
     seconds = time.perf_counter() - start
 
     best = max(reconstructions.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()), default=None)
-    poses = {} if best is None else _poses(best)
-    registered = tuple(sorted(poses))
-    result = SfmResult(
-        scene_dir=scene_dir,
-        model_dir=model_dir,
-        n_images=len(names),
-        registered=registered,
-        unregistered=tuple(sorted(set(names) - set(registered))),
-        n_points3D=0 if best is None else best.num_points3D(),
-        mean_reprojection_error=math.nan if best is None else float(best.compute_mean_reprojection_error()),
-        matcher=used_matcher,
-        camera_mode=camera_mode,
-        camera_model=camera_model,
-        seconds=seconds,
+    result = _result(
+        scene_dir, names, best, matcher=used_matcher, camera_mode=camera_mode, camera_model=camera_model, seconds=seconds
     )
     logger.info("sfm: %s", result.summary())
     _check_registered(result, minimum, max_image_size)
@@ -432,6 +420,25 @@ def _check_registered(result: SfmResult, minimum: int, max_image_size: int) -> N
     )
 
 
+def _result(scene_dir: Path, names: list[str], reconstruction, **run) -> SfmResult:
+    """The SfmResult of ``reconstruction`` (None: nothing registered) over the images ``names``;
+    ``run``: the remaining SfmResult fields (matcher, camera_mode, camera_model, seconds, ...)."""
+    poses = {} if reconstruction is None else _poses(reconstruction)
+    registered = tuple(sorted(n for n in poses if n in set(names)))
+    return SfmResult(
+        scene_dir=scene_dir,
+        model_dir=scene_dir / SPARSE_MODEL,
+        n_images=len(names),
+        registered=registered,
+        unregistered=tuple(sorted(set(names) - set(registered))),
+        n_points3D=0 if reconstruction is None else reconstruction.num_points3D(),
+        mean_reprojection_error=(
+            math.nan if reconstruction is None else float(reconstruction.compute_mean_reprojection_error())
+        ),
+        **run,
+    )
+
+
 def _cached_result(scene_dir: Path, names: list[str], undistort: bool) -> SfmResult | None:
     """The SfmResult of the model already in ``sparse/0``, or None when it is stale.
 
@@ -449,17 +456,11 @@ def _cached_result(scene_dir: Path, names: list[str], undistort: bool) -> SfmRes
             logger.info("sfm: images/ changed since %s was computed; recomputing", model_dir)
             return None
     reconstruction = _read_model(model_dir)
-    poses = _poses(reconstruction)
-    registered = tuple(n for n in poses if n in set(names))
     models = {camera.model_name for camera in reconstruction.cameras.values()}
-    result = SfmResult(
-        scene_dir=scene_dir,
-        model_dir=model_dir,
-        n_images=len(names),
-        registered=registered,
-        unregistered=tuple(sorted(set(names) - set(registered))),
-        n_points3D=reconstruction.num_points3D(),
-        mean_reprojection_error=float(reconstruction.compute_mean_reprojection_error()),
+    result = _result(
+        scene_dir,
+        names,
+        reconstruction,
         matcher=report.get("matcher", "unknown"),
         camera_mode=report.get("camera_mode", "single" if reconstruction.num_cameras() == 1 else "per_image"),
         camera_model=report.get("camera_model", ",".join(sorted(models))),
@@ -470,17 +471,11 @@ def _cached_result(scene_dir: Path, names: list[str], undistort: bool) -> SfmRes
     undistorted = scene_dir / SFM_FOLDER / UNDISTORTED_FOLDER
     if not transforms.is_file() or (undistort and not (undistorted / TRANSFORMS_FILE).is_file()):
         return _write_outputs(result, reconstruction, undistort, report.get("max_image_size"), report.get("max_num_features"))
-    return _replace(
+    return replace(
         result,
         transforms_path=transforms,
         undistorted_dir=undistorted if (undistorted / TRANSFORMS_FILE).is_file() else None,
     )
-
-
-def _replace(result: SfmResult, **changes) -> SfmResult:
-    fields = {name: getattr(result, name) for name in result.__dataclass_fields__}
-    fields.update(changes)
-    return SfmResult(**fields)
 
 
 def _write_outputs(result: SfmResult, reconstruction, undistort: bool, max_image_size, max_num_features) -> SfmResult:
@@ -495,7 +490,7 @@ def _write_outputs(result: SfmResult, reconstruction, undistort: bool, max_image
     undistorted_dir = None
     if undistort:
         undistorted_dir = _undistort(result, sfm_dir / UNDISTORTED_FOLDER)
-    result = _replace(result, transforms_path=transforms_path, undistorted_dir=undistorted_dir)
+    result = replace(result, transforms_path=transforms_path, undistorted_dir=undistorted_dir)
     report = {
         key: (str(value) if isinstance(value, Path) else list(value) if isinstance(value, tuple) else value)
         for key, value in asdict(result).items()
