@@ -8,12 +8,15 @@ Public API (numpy in, numpy out)::
     r = field.query_rays(origins, directions)   # rgb, depth, opacity, probs, label
     m = field.occupancy_map(voxel_size=0.05)
     m.to_zarr("room.zarr")
+    write_occupancy_map("room/scenelabel", "room.zarr", 0.02)   # chunk by chunk (client=: a Dask cluster)
 """
 
 from ._version import __version__
+from .batch import SceneOutcome, build_many
 from .config import BuildConfig, DataConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
 from .errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
 from .io import load_scene
+from .map_export import write_occupancy_map
 from .maps import FREE, UNKNOWN, OccupancyMap
 from .pipeline import BuildResult, build
 from .scene import Cameras, ClassMap, Scene
@@ -29,10 +32,13 @@ __all__ = [
     "RayQuery",
     "RenderResult",
     "OccupancyMap",
+    "write_occupancy_map",
     "FREE",
     "UNKNOWN",
     "build",
     "BuildResult",
+    "build_many",
+    "SceneOutcome",
     "load_scene",
     "run_sfm",
     "SfmResult",

@@ -71,6 +71,8 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
 
 
 def _print_metrics(metrics: dict, out_dir: Path) -> None:
+    if metrics.get("rank", 0):  # a data-parallel rank other than 0: rank 0 reports
+        return
     keys = ["psnr", "ssim", "miou", "miou_smoothed", "depth_error"]
     parts = [f"{k}={metrics[k]:.4f}" for k in keys if k in metrics]
     print(f"held-out ({metrics.get('n_test_views', 0)} views): " + ", ".join(parts))
@@ -115,9 +117,35 @@ def _cmd_sfm(args: argparse.Namespace) -> None:
         print("not registered: " + ", ".join(result.unregistered))
 
 
-def _cmd_build(args: argparse.Namespace) -> None:
+EXIT_SCENES_FAILED = 1
+"""``build`` of several scenes: the exit status when at least one scene failed."""
+
+
+def _build_many(args: argparse.Namespace) -> int:
+    """``build`` of several scenes (or of one on a Dask cluster): independent jobs and a summary table."""
+    import contextlib
+
+    from .batch import SUMMARY_MD, build_many, summary_table
+
+    if args.resume or args.segmenter:
+        raise ScenelabelError("--resume and --segmenter take one scene folder; run `scenelabel build SCENE` per scene")
+    config = preset(args.preset, _overrides(args))
+    with contextlib.ExitStack() as stack:
+        client = _dask_client(stack, args.workers, args.scheduler)
+        outcomes = build_many(args.scene, args.out, config, client=client, device=args.device, progress=not args.quiet)
+    print(summary_table(outcomes))
+    failed = [o for o in outcomes if not o.ok]
+    where = f"; summary: {Path(args.out) / SUMMARY_MD}" if args.out else ""
+    print(f"built {len(outcomes) - len(failed)} of {len(outcomes)} scenes" + (f", {len(failed)} failed" if failed else "") + where)
+    return EXIT_SCENES_FAILED if failed else 0
+
+
+def _cmd_build(args: argparse.Namespace) -> int | None:
     from .pipeline import build, resume_config
 
+    if len(args.scene) > 1 or args.workers is not None or args.scheduler:
+        return _build_many(args)
+    args.scene = args.scene[0]
     if args.segmenter and not (Path(args.scene) / "labels").is_dir():
         _segment(args.scene, args.segmenter, False, args.device, args.quiet)
     if args.resume:
@@ -155,11 +183,16 @@ def _cmd_demo(args: argparse.Namespace) -> None:
 EXPORT_FORMATS = ("zarr", "ply", "mesh", "nav2")
 
 
+def _is_build(source: Path) -> bool:
+    """A build folder (with checkpoint.pt) or a checkpoint file."""
+    return (source / "checkpoint.pt").is_file() or (source.is_file() and source.suffix == ".pt")
+
+
 def _load_map(source: Path, voxel_size: float | None):
     """The occupancy map of a build folder (evaluated at ``voxel_size``) or of a map .zarr folder."""
     from .maps import OccupancyMap
 
-    is_build = (source / "checkpoint.pt").is_file() or (source.is_file() and source.suffix == ".pt")
+    is_build = _is_build(source)
     is_zarr = source.is_dir() and ((source / "zarr.json").is_file() or (source / ".zgroup").is_file())
     if is_build:
         from .semantic_field import SemanticField
@@ -172,11 +205,54 @@ def _load_map(source: Path, voxel_size: float | None):
     raise InputError("neither a build folder (with checkpoint.pt) nor an occupancy map (.zarr folder)", path=source)
 
 
+def _dask_client(stack, workers: int | None, scheduler: str | None):
+    """A Dask client for ``--workers N`` (a local cluster of N processes, one thread each) or
+    ``--scheduler ADDRESS``, closed with ``stack``; None for neither."""
+    if workers is None and not scheduler:
+        return None
+    if workers is not None and workers < 1:
+        raise InputError(f"must be at least 1, got {workers}", field="--workers")
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return stack.enter_context(Client(scheduler))
+        except (OSError, TimeoutError, ValueError) as err:
+            raise ScenelabelError(f"cannot connect to the Dask scheduler at {scheduler}: {err}") from None
+    cluster = stack.enter_context(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None))
+    return stack.enter_context(Client(cluster))
+
+
+def _export_chunked(args: argparse.Namespace, source: Path, out: Path) -> None:
+    """``export BUILD OUT.zarr``: the map evaluated chunk by chunk into the store (bounded memory),
+    in this process or on a Dask cluster (:func:`scenelabel.map_export.write_occupancy_map`)."""
+    import contextlib
+
+    import zarr
+
+    from .map_export import write_occupancy_map
+
+    with contextlib.ExitStack() as stack:
+        client = _dask_client(stack, args.workers, args.scheduler)
+        path = write_occupancy_map(
+            source, out, args.voxel_size, zarr_format=args.zarr_format, client=client, progress=not args.quiet
+        )
+    group = zarr.open_group(str(path), mode="r")
+    print(f"wrote {path}: {tuple(group['label'].shape)} voxels of {group.attrs['voxel_size']:g}")
+
+
 def _cmd_export(args: argparse.Namespace) -> None:
     from . import exports
 
-    occ = _load_map(Path(args.source), args.voxel_size)
-    out = Path(args.out)
+    source, out = Path(args.source), Path(args.out)
+    if args.format == "zarr" and _is_build(source):
+        _export_chunked(args, source, out)
+        return
+    if args.workers is not None or args.scheduler:
+        raise InputError(
+            "--workers and --scheduler apply to --format zarr from a build folder (the chunked export)", path=source
+        )
+    occ = _load_map(source, args.voxel_size)
     if args.format == "zarr":
         path = occ.to_zarr(out, zarr_format=args.zarr_format)
         print(f"wrote {path}: {occ.shape} voxels of {occ.voxel_size:g}")
@@ -197,9 +273,30 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"scenelabel {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("build", help="train a semantic field on a scene folder")
-    p.add_argument("scene", help="scene folder (images/, labels/, classes.json, transforms.json or poses_bounds.npy)")
+    p = sub.add_parser(
+        "build",
+        help="train a semantic field on a scene folder (or on several, one field each)",
+        description="Several scenes are independent jobs, one field each: --out is then the root of their "
+        "output folders (OUT/<scene folder name>; default: each SCENE/scenelabel), each with its build.log; "
+        "a failed scene does not stop the others. A table of every scene is printed (and written to "
+        "OUT/summary.md and OUT/summary.json); the exit status is 1 when a scene failed.",
+    )
+    p.add_argument(
+        "scene",
+        nargs="+",
+        help="scene folder(s) (images/, labels/, classes.json, transforms.json or poses_bounds.npy)",
+    )
     _add_build_options(p)
+    cluster = p.add_mutually_exclusive_group()
+    cluster.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="run the scenes on a local Dask cluster of N worker processes, one thread each (default: one after another)",
+    )
+    cluster.add_argument(
+        "--scheduler", metavar="ADDRESS", help="run the scenes on the Dask cluster at this scheduler (tcp://HOST:8786)"
+    )
     p.add_argument(
         "--resume",
         action="store_true",
@@ -237,6 +334,21 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-min", type=float, help="nav2: bottom of the height band, world z (default: one voxel above the floor)")
     p.add_argument("--z-max", type=float, help="nav2: top of the height band, world z (default: below the ceiling, or the map's top)")
     p.add_argument("--robot-height", type=float, help="nav2: band top = floor top + this (world units)")
+    cluster = p.add_mutually_exclusive_group()
+    cluster.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="zarr from a build folder: evaluate the map's chunks on a local Dask cluster of N worker processes "
+        "(default: chunk by chunk in this process)",
+    )
+    cluster.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="zarr from a build folder: evaluate the map's chunks on the Dask cluster at this scheduler "
+        "(tcp://HOST:8786; the build folder and OUT on a filesystem every worker sees)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser(
@@ -276,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     warnings.formatwarning = lambda msg, cat, *a, **k: f"scenelabel: warning: {msg}\n"
     try:
-        args.func(args)
+        status = args.func(args)  # None: success; an int: the exit status
     except TrainingInterrupted as err:
         print(f"scenelabel: {err}", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -286,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("scenelabel: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ import numpy as np
 
 from ._files import atomic_write_bytes
 from .errors import InputError
-from .maps import FREE, UNKNOWN, OccupancyMap, index_from_world, world_from_index
+from .maps import FREE, UNKNOWN, OccupancyMap, index_from_world, unit_from_uint8, world_from_index
 
 __all__ = [
     "FALLBACK_PALETTE",
@@ -166,8 +166,10 @@ def write_point_cloud(occ_map: OccupancyMap, path: str | Path) -> Path:
     """Occupied voxel centres as a coloured point cloud (binary little-endian PLY).
 
     Per point (vertex properties, in this order): ``x y z`` double (world centre of the voxel),
-    ``red green blue`` uchar (the class colour, :func:`class_palette`), ``label`` int (class id)
-    and ``occupancy`` float. open3d's tensor API reads every property back
+    ``red green blue`` uchar (the class colour, :func:`class_palette`), ``label`` int (class id),
+    ``occupancy`` float and, when the map has it, ``confidence`` float in [0, 1] (1 - normalised
+    entropy of the voxel's class probabilities, :func:`scenelabel.maps.confidence_from_probs`,
+    as quantised in the map). open3d's tensor API reads every property back
     (``open3d.t.io.read_point_cloud(path).point.label``); other PLY readers see standard coloured
     points. A map with no occupied voxel gives a valid PLY with 0 points.
 
@@ -182,20 +184,19 @@ def write_point_cloud(occ_map: OccupancyMap, path: str | Path) -> Path:
     ijk, label = occupied_voxels(occ_map)
     xyz = occ_map.world_from_index(ijk)  # [N, 3] float64
     rgb = _color_lookup(class_palette(occ_map.classes, occ_map.class_colors), label)  # [N, 3] uint8
-    return write_ply(
-        path,
-        {
-            "x": xyz[:, 0],
-            "y": xyz[:, 1],
-            "z": xyz[:, 2],
-            "red": rgb[:, 0],
-            "green": rgb[:, 1],
-            "blue": rgb[:, 2],
-            "label": label.astype(np.int32),
-            "occupancy": occ_map.occupancy[tuple(ijk.T)].astype(np.float32),
-        },
-        comments=_frame_comments(occ_map),
-    )
+    properties = {
+        "x": xyz[:, 0],
+        "y": xyz[:, 1],
+        "z": xyz[:, 2],
+        "red": rgb[:, 0],
+        "green": rgb[:, 1],
+        "blue": rgb[:, 2],
+        "label": label.astype(np.int32),
+        "occupancy": occ_map.occupancy[tuple(ijk.T)].astype(np.float32),
+    }
+    if occ_map.confidence is not None:
+        properties["confidence"] = unit_from_uint8(occ_map.confidence[tuple(ijk.T)]).astype(np.float32)
+    return write_ply(path, properties, comments=_frame_comments(occ_map))
 
 
 def _frame_comments(occ_map: OccupancyMap) -> tuple[str, ...]:

@@ -35,6 +35,7 @@ Typical use by an exporter that evaluates a field in bounded memory::
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -63,6 +64,7 @@ __all__ = [
     "lattice",
     "iter_chunks",
     "voxel_centers",
+    "block_centers",
     "index_from_world",
     "world_from_index",
     "validate_attributes",
@@ -76,6 +78,8 @@ __all__ = [
     "pool_probs",
     "pool_labels",
     "pool_occupancy",
+    "pool_block",
+    "array_chunks",
     "default_levels",
     "ngff_multiscales",
 ]
@@ -298,9 +302,22 @@ def voxel_centers(
     origin = _vec3(origin, "origin")
     voxel_size = _positive(voxel_size, "voxel_size")
     for slices in iter_chunks(shape, chunk):
-        ii, jj, kk = np.meshgrid(*(np.arange(s.start, s.stop) for s in slices), indexing="ij")
-        ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=-1)
-        yield slices, world_from_index(ijk, origin, voxel_size)
+        yield slices, block_centers(origin, voxel_size, slices)
+
+
+def block_centers(origin: Any, voxel_size: float, block: tuple[slice, slice, slice]) -> np.ndarray:
+    """World centres of one block of a grid's voxels (what :func:`voxel_centers` yields for it).
+
+    Args:
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        block: (slice_i, slice_j, slice_k) with explicit start and stop.
+    Returns:
+        [bi * bj * bk, 3] float64 world centres in C order of the block.
+    """
+    ii, jj, kk = np.meshgrid(*(np.arange(s.start, s.stop) for s in block), indexing="ij")
+    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=-1)
+    return world_from_index(ijk, origin, voxel_size)
 
 
 def world_from_grid_matrix(origin: Any, voxel_size: float) -> np.ndarray:
@@ -477,6 +494,49 @@ def pool_occupancy(occupancy: np.ndarray, coarse_label: np.ndarray, factor: int 
     if pooled.shape != np.shape(coarse_label):
         raise InputError(f"coarse_label has shape {np.shape(coarse_label)}, expected {pooled.shape}", field="coarse_label")
     return np.where(np.asarray(coarse_label) == UNKNOWN, np.float32(0), pooled).astype(OCCUPANCY_DTYPE)
+
+
+def pool_block(
+    label: np.ndarray,
+    occupancy: np.ndarray,
+    probs: np.ndarray | None = None,
+    factor: int = PYRAMID_FACTOR,
+    class_ids: Any = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Coarse voxels from their ``factor``³ children: every array of a map at once, the one
+    implementation behind :meth:`OccupancyMap.downsample` (:func:`pool_probs`,
+    :func:`pool_labels`, :func:`pool_occupancy`).
+
+    Each coarse voxel depends on its own children only, so a block of a fine grid that starts
+    at a multiple of ``factor`` gives exactly those coarse voxels of the whole grid's result
+    (children beyond the block's upper edge count as UNKNOWN, as beyond the grid's).
+
+    Args:
+        label: [nx, ny, nz] int labels.
+        occupancy: [nx, ny, nz] in [0, 1].
+        probs: [nx, ny, nz, C] uint8 codes (value * 255), or None.
+        factor: children per axis, >= 1.
+        class_ids: [C] class id of each channel of ``probs``.
+    Returns:
+        label [X, Y, Z] int16, occupancy [X, Y, Z] float32, probs [X, Y, Z, C] uint8 (or None),
+        confidence [X, Y, Z] uint8 (or None), X = ceil(nx / factor), ...
+    """
+    factor = _factor(factor)
+    pooled = None if probs is None else pool_probs(label, unit_from_uint8(probs), factor)
+    coarse = pool_labels(label, occupancy, factor, class_ids, pooled)
+    confidence = None
+    if pooled is not None:
+        confidence = np.where(coarse == UNKNOWN, 0, uint8_from_unit(confidence_from_probs(pooled))).astype(QUANTISED_DTYPE)
+        pooled = uint8_from_unit(pooled)
+    return coarse, pool_occupancy(occupancy, coarse, factor), pooled, confidence
+
+
+def _check_levels(levels: Any, shape: Any) -> int:
+    """``levels`` checked (an integer in [1, MAX_LEVELS]); None: :func:`default_levels` of ``shape``."""
+    levels = default_levels(shape) if levels is None else levels
+    if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) or not 1 <= levels <= MAX_LEVELS:
+        raise InputError(f"levels must be an integer in [1, {MAX_LEVELS}], got {levels!r}", field="levels")
+    return int(levels)
 
 
 def default_levels(shape: Any, min_edge: int = MIN_COARSE_EDGE, max_levels: int = MAX_LEVELS) -> int:
@@ -810,21 +870,16 @@ class OccupancyMap:
         factor = _factor(factor)
         if factor == 1:
             return self
-        probs = None if self.probs is None else pool_probs(self.label, unit_from_uint8(self.probs), factor)
-        label = pool_labels(self.label, self.occupancy, factor, self.class_ids, probs)
-        confidence = None
-        if probs is not None:
-            confidence = np.where(label == UNKNOWN, 0, uint8_from_unit(confidence_from_probs(probs)))
-            probs = uint8_from_unit(probs)
+        label, occupancy, probs, confidence = pool_block(self.label, self.occupancy, self.probs, factor, self.class_ids)
         voxel_size = self.voxel_size * factor
         return dataclasses.replace(
             self,
             label=label,
-            occupancy=pool_occupancy(self.occupancy, label, factor),
+            occupancy=occupancy,
             voxel_size=voxel_size,
             origin=self.origin_corner + voxel_size / 2.0,
             probs=probs,
-            confidence=None if confidence is None else confidence.astype(QUANTISED_DTYPE),
+            confidence=confidence,
         )
 
     def pyramid(self, levels: int | None = None) -> list[OccupancyMap]:
@@ -833,10 +888,7 @@ class OccupancyMap:
         Args:
             levels: number of levels >= 1; None: :func:`default_levels` of the shape.
         """
-        levels = default_levels(self.shape) if levels is None else levels
-        if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) or not 1 <= levels <= MAX_LEVELS:
-            raise InputError(f"levels must be an integer in [1, {MAX_LEVELS}], got {levels!r}", field="levels")
-        return [self.downsample(PYRAMID_FACTOR**level) for level in range(int(levels))]
+        return [self.downsample(PYRAMID_FACTOR**level) for level in range(_check_levels(levels, self.shape))]
 
     # ---- comparison ----
 
@@ -923,46 +975,17 @@ class OccupancyMap:
         """
         import zarr
 
-        if zarr_format not in (2, 3):
-            raise InputError(f"zarr_format must be 2 or 3, got {zarr_format!r}", field="zarr_format")
-        chunks = _shape3(chunks, "chunks")
-        path = Path(path).expanduser().absolute()
-        if path.exists() or path.is_symlink():
-            if not overwrite:
-                raise InputError("already exists (pass overwrite=True to replace it)", path=path)
-            if not _is_replaceable(path):
-                raise InputError("exists and is not a zarr group; refusing to replace it", path=path)
-        if not path.parent.is_dir():
-            raise InputError("the parent folder does not exist", path=path.parent)
+        zarr_format, chunks, path = _check_target(path, zarr_format, chunks, overwrite)
         pyramid = self.pyramid(levels)
-
-        tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
-        _remove(tmp)
-        try:
+        with _staged_group(path) as tmp:
             root = zarr.open_group(str(tmp), mode="w", zarr_format=zarr_format)
             for level, level_map in enumerate(pyramid):
-                group = root if level == 0 else root.require_group(LEVELS_GROUP).require_group(str(level))
+                group = root if level == 0 else _level_group(root, level)
                 level_map._write_arrays(group, zarr_format, chunks)
                 if level:
                     group.attrs.update(level_map._group_attributes(level, len(pyramid)))
             # last: marks the map complete
-            root.attrs.update({**self._group_attributes(0, len(pyramid)), **ngff_multiscales(pyramid, zarr_format)})
-        except BaseException:
-            _remove(tmp)
-            raise
-
-        aside = path.parent / f".{path.name}.old-{os.getpid()}"
-        if path.exists() or path.is_symlink():
-            _remove(aside)
-            os.replace(path, aside)
-        try:
-            os.replace(tmp, path)
-        except BaseException:
-            if aside.exists() and not path.exists():
-                os.replace(aside, path)
-            _remove(tmp)
-            raise
-        _remove(aside)
+            root.attrs.update(_root_attributes(pyramid, zarr_format))
         return path
 
     def _group_attributes(self, level: int, n_levels: int) -> dict[str, Any]:
@@ -971,42 +994,56 @@ class OccupancyMap:
 
     def _write_arrays(self, group: Any, zarr_format: int, chunks: tuple[int, int, int]) -> None:
         """Write this map's arrays into a zarr group (no group attributes)."""
-        chunks = tuple(min(c, n) for c, n in zip(chunks, self.shape))
+        for name, array in self._create_arrays(group, zarr_format, chunks, self.shape).items():
+            array[...] = getattr(self, name)
+
+    def _create_arrays(
+        self, group: Any, zarr_format: int, chunks: tuple[int, int, int], shape: tuple[int, int, int]
+    ) -> dict[str, Any]:
+        """Create (unfilled) the arrays of a map of this one's classes, with ``probs`` /
+        ``confidence`` when this map has them, and ``shape``, in a zarr group.
+
+        Returns:
+            name -> zarr array; spatial chunks ``chunks`` clipped to ``shape`` (:func:`array_chunks`).
+        """
+        chunks = array_chunks(chunks, shape)
+        n_classes = len(self.classes)
         scaled = {"scale_factor": 1.0 / QUANTISATION_STEPS, "add_offset": 0.0}  # CF: value = code * scale_factor
         names = [UNKNOWN_WORD, FREE_WORD] + [_flag_word(cid, name) for cid, name in self.classes.items()]
         arrays = [
-            (LABEL_ARRAY, self.label, UNKNOWN, {
+            (LABEL_ARRAY, LABEL_DTYPE, shape, UNKNOWN, {
                 "description": "class id >= 0, FREE = -1, UNKNOWN = -2",
                 "flag_values": [UNKNOWN, FREE, *self.classes],  # CF: flag_values / flag_meanings
                 "flag_meanings": " ".join(names),
             }),
-            (OCCUPANCY_ARRAY, self.occupancy, 0.0, {
+            (OCCUPANCY_ARRAY, OCCUPANCY_DTYPE, shape, 0.0, {
                 "description": "occupancy = 1 - exp(-sigma * occupancy_delta), in [0, 1]",
             }),
         ]
         if self.probs is not None:
-            arrays.append((PROBS_ARRAY, self.probs, 0, {
+            arrays.append((PROBS_ARRAY, QUANTISED_DTYPE, (*shape, n_classes), 0, {
                 "description": "class probabilities quantised: p = code / 255; channel c is class_ids[c]; 0 where UNKNOWN",
                 "class_ids": self.class_ids.tolist(),
                 **scaled,
             }))
         if self.confidence is not None:
-            arrays.append((CONFIDENCE_ARRAY, self.confidence, 0, {
+            arrays.append((CONFIDENCE_ARRAY, QUANTISED_DTYPE, shape, 0, {
                 "description": "1 - entropy / log(C) of the class distribution, quantised: code / 255; 0 where UNKNOWN",
                 **scaled,
             }))
-        for name, data, fill, array_attrs in arrays:
-            dims = PROBS_DIMENSION_NAMES if data.ndim == 4 else DIMENSION_NAMES
+        created = {}
+        for name, dtype, array_shape, fill, array_attrs in arrays:
+            dims = PROBS_DIMENSION_NAMES if len(array_shape) == 4 else DIMENSION_NAMES
             extra: dict[str, Any] = {}
             if zarr_format == 3:
                 extra["dimension_names"] = list(dims)
             else:  # v2 has no dimension names: the xarray convention
                 array_attrs["_ARRAY_DIMENSIONS"] = list(dims)
-            array = group.create_array(
-                name, shape=data.shape, dtype=data.dtype, chunks=chunks + data.shape[3:], fill_value=fill,
+            created[name] = group.create_array(
+                name, shape=array_shape, dtype=dtype, chunks=chunks + tuple(array_shape[3:]), fill_value=fill,
                 attributes=array_attrs, **extra,
             )
-            array[...] = data
+        return created
 
     @staticmethod
     def from_zarr(path: str | Path, level: int = 0) -> "OccupancyMap":
@@ -1084,6 +1121,75 @@ class OccupancyMap:
             )
         except InputError as exc:
             raise InputError(exc.problem, path=path, field=exc.field) from None
+
+
+def array_chunks(chunks: Any, shape: Any) -> tuple[int, int, int]:
+    """The spatial chunk shape :meth:`OccupancyMap.to_zarr` gives a level of ``shape``: ``chunks``
+    clipped to it per axis."""
+    return tuple(min(c, n) for c, n in zip(_shape3(chunks, "chunks"), _shape3(shape)))  # type: ignore[return-value]
+
+
+def _level_group(root: Any, level: int) -> Any:
+    """The group of pyramid level ``level`` >= 1 (``levels/L``), created when missing."""
+    return root.require_group(LEVELS_GROUP).require_group(str(level))
+
+
+def _root_attributes(pyramid: list[OccupancyMap], zarr_format: int) -> dict[str, Any]:
+    """The root group's attributes of a written pyramid: level 0's map attributes, ``level``,
+    ``n_levels`` and the OME-NGFF metadata. (Only metadata of the levels is used, never their
+    arrays.)"""
+    return {**pyramid[0]._group_attributes(0, len(pyramid)), **ngff_multiscales(pyramid, zarr_format)}
+
+
+def _check_target(path: Any, zarr_format: Any, chunks: Any, overwrite: bool) -> tuple[int, tuple[int, int, int], Path]:
+    """Checks of :meth:`OccupancyMap.to_zarr`'s arguments before anything is written.
+
+    Returns:
+        zarr_format, chunks (3 ints), the absolute target path.
+    Raises:
+        InputError: bad zarr_format or chunks; ``path`` exists and is not a zarr group or
+            overwrite is False; its parent folder does not exist.
+    """
+    if zarr_format not in (2, 3):
+        raise InputError(f"zarr_format must be 2 or 3, got {zarr_format!r}", field="zarr_format")
+    chunks = _shape3(chunks, "chunks")
+    path = Path(path).expanduser().absolute()
+    if path.exists() or path.is_symlink():
+        if not overwrite:
+            raise InputError("already exists (pass overwrite=True to replace it)", path=path)
+        if not _is_replaceable(path):
+            raise InputError("exists and is not a zarr group; refusing to replace it", path=path)
+    if not path.parent.is_dir():
+        raise InputError("the parent folder does not exist", path=path.parent)
+    return int(zarr_format), chunks, path
+
+
+@contextlib.contextmanager
+def _staged_group(path: Path) -> Iterator[Path]:
+    """Write a map atomically: yields the hidden sibling ``.{name}.tmp-{pid}`` to write into;
+    when the block ends without an error, moves it into place at ``path`` (an existing map is
+    renamed aside first and removed once the new one is in place); on any error removes it and
+    re-raises (``path`` untouched)."""
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
+    _remove(tmp)
+    try:
+        yield tmp
+    except BaseException:
+        _remove(tmp)
+        raise
+
+    aside = path.parent / f".{path.name}.old-{os.getpid()}"
+    if path.exists() or path.is_symlink():
+        _remove(aside)
+        os.replace(path, aside)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        if aside.exists() and not path.exists():
+            os.replace(aside, path)
+        _remove(tmp)
+        raise
+    _remove(aside)
 
 
 def _checked_attributes(group: Any, path: Path) -> dict[str, Any]:

@@ -37,6 +37,7 @@ from .postprocess import colorize_labels, side_by_side, smooth_class_probs
 from .sampling import OccupancyGrid
 from .scene import UNLABELLED_NAME, Cameras, ClassMap, Scene
 from .semantic_field import TRAIN_CAMERAS_KEY, SemanticField
+from .distributed import DistContext, init_from_env, leave
 from .train import Trainer, rays_for_views
 from .visibility import cameras_to_dict
 from .warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
@@ -50,7 +51,7 @@ VOXEL_FOOTPRINT_PIXELS = 2.0
 
 @dataclass
 class BuildResult:
-    field: SemanticField
+    field: SemanticField | None  # None on data-parallel ranks other than 0 (they write nothing)
     metrics: dict
     out_dir: Path
 
@@ -227,40 +228,14 @@ def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
     return ClassMap.from_labels([scene.labels[i] for i in train_idx], scene.classes, scene.ignore_index)
 
 
-def build(
-    scene_path: str | Path | Scene,
-    out_dir: str | Path | None = None,
-    config: BuildConfig | None = None,
-    progress: bool = True,
-    device: str | None = None,
-    resume: bool = False,
-) -> BuildResult:
-    """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
+def prepare_training(
+    scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext()
+) -> tuple[Trainer, dict, list[int]]:
+    """A loaded scene -> its trainer (field, grid, rays), the checkpoint's fixed record and the held-out views.
 
-    Args:
-        scene_path: a scene folder (see docs/formats.md) or an already loaded Scene.
-        out_dir: output folder (default: <scene>/scenelabel).
-        config: the resolved config (default: the ``fast`` preset).
-        progress: show a progress bar.
-        device: 'cpu', 'cuda' or None (CUDA when available).
-        resume: continue from the checkpoint in ``out_dir`` (same scene; pass its config, see
-            :func:`resume_config`). Checkpoints are written atomically every
-            ``train.checkpoint_every`` steps, at the end, and on Ctrl-C.
-    Returns:
-        BuildResult with the loaded SemanticField and the metrics.
+    Seeds every random generator with ``config.train.seed`` first, so every data-parallel rank
+    starts from the same field.
     """
-    config = config or preset("fast")
-    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path, config.data.downscale)
-    if config.data.scale is not None:
-        scene = scene.scaled(config.data.scale)
-    out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create the output folder: {err.strerror or err}", path=out_dir) from None
-    if not os.access(out_dir, os.W_OK):
-        raise InputError("the output folder is not writable", path=out_dir)
-    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     _seed_everything(config.train.seed)
 
     train_idx, test_idx = split_views(len(scene), config.train.holdout)
@@ -274,7 +249,7 @@ def build(
         warp, config.sampling.grid_resolution, _cell_steps(warp, aabb_n, config), config.sampling.alpha_threshold
     )
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
-    trainer = Trainer(model, grid, rays, config, dev)
+    trainer = Trainer(model, grid, rays, config, device, context)
     finest = _finest_cell(config, aabb)
     static = {
         "config": config_to_dict(config),
@@ -295,14 +270,73 @@ def build(
         TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
+    return trainer, static, test_idx
+
+
+def _training_metrics(trainer: Trainer) -> dict:
+    """What a rank knows after training: steps, time, rate, and the data-parallel layout."""
+    state, context = trainer.state, trainer.dist
+    return {
+        "scenelabel_version": __version__,
+        "preset": trainer.config.preset,
+        "steps": state.step,
+        "train_seconds": state.elapsed,
+        "steps_per_second": state.step / max(state.elapsed, 1e-9),
+        "world_size": context.world_size,
+        "rank": context.rank,
+        "rays_per_step": context.world_size * trainer.batch_rays,
+    }
+
+
+def build(
+    scene_path: str | Path | Scene,
+    out_dir: str | Path | None = None,
+    config: BuildConfig | None = None,
+    progress: bool = True,
+    device: str | None = None,
+    resume: bool = False,
+) -> BuildResult:
+    """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
+
+    Args:
+        scene_path: a scene folder (see docs/formats.md) or an already loaded Scene.
+        out_dir: output folder (default: <scene>/scenelabel).
+        config: the resolved config (default: the ``fast`` preset).
+        progress: show a progress bar.
+        device: 'cpu', 'cuda' or None (CUDA when available).
+        resume: continue from the checkpoint in ``out_dir`` (same scene; pass its config, see
+            :func:`resume_config`). Checkpoints are written atomically every
+            ``train.checkpoint_every`` steps, at the end, and on Ctrl-C.
+    Under ``torchrun`` (``WORLD_SIZE`` > 1) every process trains the same field data-parallel
+    (:mod:`scenelabel.distributed`); rank 0 alone writes the checkpoint, evaluates, and writes
+    metrics, renders and map; the other ranks return after training.
+
+    Returns:
+        BuildResult with the loaded SemanticField and the metrics (other ranks: no field, and
+        only the training figures).
+    """
+    config = config or preset("fast")
+    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path, config.data.downscale)
+    if config.data.scale is not None:
+        scene = scene.scaled(config.data.scale)
+    out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create the output folder: {err.strerror or err}", path=out_dir) from None
+    if not os.access(out_dir, os.W_OK):
+        raise InputError("the output folder is not writable", path=out_dir)
+    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    context, dev = init_from_env(dev)
+    trainer, static, test_idx = prepare_training(scene, config, dev, context)
 
     def payload(t: Trainer) -> dict:
         return {**static, **t.state_dict()}
 
     ckpt_path = out_dir / CHECKPOINT_NAME
-    if resume:
-        _resume(trainer, ckpt_path, static)
     try:
+        if resume:
+            _resume(trainer, ckpt_path, static)
         state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
     except TrainingInterrupted as err:
         raise TrainingInterrupted(
@@ -311,6 +345,10 @@ def build(
     except TrainingError as err:
         kept = f"; the last checkpoint before the failure is kept at {ckpt_path}" if ckpt_path.exists() else ""
         raise TrainingError(f"{err}{kept}") from None
+    finally:
+        leave(context)
+    if not context.is_main:  # rank 0 alone evaluates and writes
+        return BuildResult(field=None, metrics=_training_metrics(trainer), out_dir=out_dir)
     save_checkpoint(ckpt_path, payload(trainer))
     atomic_write_bytes(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2).encode())
 
@@ -324,13 +362,9 @@ def build(
     eval_seconds = time.perf_counter() - t0
     metrics.update(
         {
-            "scenelabel_version": __version__,
-            "preset": config.preset,
-            "steps": state.step,
-            "train_seconds": state.elapsed,
-            "steps_per_second": state.step / max(state.elapsed, 1e-9),
+            **_training_metrics(trainer),
             "eval_seconds": eval_seconds,
-            "n_train_views": len(train_idx),
+            "n_train_views": len(static["train_views"]),
             "classes": {str(k): v for k, v in field.classes.items()},
             "history": state.history,
         }

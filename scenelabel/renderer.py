@@ -6,6 +6,7 @@ Samples in cells the occupancy grid marks empty are never evaluated (σ = 0 ther
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -19,7 +20,13 @@ from .rendering import (
 )
 from .sampling import march, ray_aabb_intersect
 
-__all__ = ["RayBundleOutput", "ray_intervals", "render_rays"]
+__all__ = ["RayBundleOutput", "ray_intervals", "render_rays", "render_rays_early_stop"]
+
+EARLY_STOP_TRANS = 1e-4
+"""Queries stop marching a ray once its transmittance is below this (:func:`render_rays_early_stop`)."""
+
+EARLY_STOP_SEGMENT = 16
+"""Samples per ray evaluated between two transmittance checks."""
 
 
 @dataclass
@@ -96,33 +103,121 @@ def render_rays(
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, step, n_samples, jitter)  # [n_rays, S]
-    t_mids = 0.5 * (t_starts + t_ends)
-    points = origins[:, None, :] + t_mids[..., None] * directions[:, None, :]  # [n_rays, S, 3]
+    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
     keep = (t_ends > t_starts) & occupancy(points)  # [n_rays, S]
-    # Skipped samples have σ = 0 and change nothing, so the kept ones are moved to the front of
-    # each ray: [n_rays, K] with K the largest count, padded with zero-length intervals.
-    counts = keep.sum(-1)
-    K = max(int(counts.max()) if counts.numel() else 0, 1)
-    rows, cols = keep.nonzero(as_tuple=True)
-    packed_cols = torch.cumsum(keep, dim=-1)[rows, cols] - 1
-    at = (rows, packed_cols)
-    kept_points = points[rows, cols]
-    zeros = torch.zeros(t_min.shape[0], K, dtype=points.dtype, device=points.device)
-    t_starts = zeros.index_put(at, t_starts[rows, cols])
-    t_ends = zeros.index_put(at, t_ends[rows, cols])
-    t_mids = zeros.index_put(at, t_mids[rows, cols])
+    rows, cols = keep.nonzero(as_tuple=True)  # row-major: each ray's samples in order
+    samples = _evaluate(field, points[rows, cols], directions[rows], with_rgb)
+    return _composite(
+        field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), background, detach_semantic_weights
+    )
+
+
+def render_rays_early_stop(
+    field,
+    occupancy,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    step: float,
+    n_samples: int,
+    background: torch.Tensor | None = None,
+    with_rgb: bool = True,
+    *,
+    min_trans: float = EARLY_STOP_TRANS,
+    segment: int = EARLY_STOP_SEGMENT,
+) -> RayBundleOutput:
+    """:func:`render_rays` without jitter or gradients, stopping each ray once it is opaque.
+
+    The samples are marched ``segment`` at a time; after each segment a ray whose transmittance
+    T = exp(-Σ σ_i δ_i) has fallen below ``min_trans`` evaluates nothing further (its later
+    samples count as σ = 0). The composite is then the same as :func:`render_rays`' with every
+    weight after the stop dropped: at most ``min_trans`` of weight in all, so colour, class
+    probabilities and depth move by at most about ``min_trans`` times their range.
+
+    Args:
+        as :func:`render_rays`; ``min_trans``: the transmittance below which a ray stops (0:
+        never, the exact composite); ``segment``: samples per ray evaluated between checks.
+    Returns:
+        RayBundleOutput.
+    """
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, step, n_samples, None)  # [n_rays, S]
+    n_rays, n_cols = t_starts.shape
+    optical = torch.zeros(n_rays, dtype=torch.float64, device=origins.device)  # Σ σ δ so far, per ray
+    max_optical = -math.log(min_trans) if min_trans > 0 else math.inf
+    active = torch.arange(n_rays, device=origins.device)
+    found_rows, found_cols, parts = [], [], []
+    for start in range(0, n_cols, segment):
+        if active.numel() == 0:
+            break
+        stop = min(start + segment, n_cols)
+        ts, te = t_starts[active, start:stop], t_ends[active, start:stop]  # [A, s]
+        points = _points(origins[active], directions[active], ts, te)
+        keep = (te > ts) & occupancy(points)
+        rows, cols = keep.nonzero(as_tuple=True)
+        samples = _evaluate(field, points[rows, cols], directions[active][rows], with_rgb)
+        optical.index_add_(0, active[rows], (samples[0] * (te - ts)[rows, cols]).double())
+        found_rows.append(active[rows])
+        found_cols.append(cols + start)
+        parts.append(samples)
+        active = active[optical[active] < max_optical]
+    rows = torch.cat(found_rows) if found_rows else torch.zeros(0, dtype=torch.long, device=origins.device)
+    cols = torch.cat(found_cols) if found_cols else torch.zeros_like(rows)
+    order = torch.argsort(rows * n_cols + cols)  # row-major, as render_rays packs them
+    if parts:
+        samples = tuple(None if parts[0][k] is None else torch.cat([p[k] for p in parts])[order] for k in range(3))
+    else:  # no sample at all: an empty evaluation keeps the shapes right
+        samples = _evaluate(field, origins[:0], directions[:0], with_rgb)
+    return _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), background)
+
+
+def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:
+    """Sample points at the interval middles: [n_rays, S, 3]."""
+    t_mids = 0.5 * (t_starts + t_ends)
+    return origins[:, None, :] + t_mids[..., None] * directions[:, None, :]
+
+
+def _evaluate(field, points: torch.Tensor, directions: torch.Tensor, with_rgb: bool):
+    """The field at [n, 3] points: (sigmas [n], rgbs [n, 3] or None, class_logits [n, C])."""
     if with_rgb:
-        s, c, l = field(kept_points, directions[rows])
-        rgbs = points.new_zeros(t_min.shape[0], K, 3).index_put(at, c)
-    else:
-        s, l = field.semantics(kept_points)
-    sigmas = zeros.index_put(at, s)
-    class_logits = points.new_zeros(t_min.shape[0], K, field.num_classes).index_put(at, l)
-    weights, _, _ = weights_from_density(sigmas, t_ends - t_starts)
+        sigmas, rgbs, class_logits = field(points, directions)
+        return sigmas, rgbs, class_logits
+    sigmas, class_logits = field.semantics(points)
+    return sigmas, None, class_logits
+
+
+def _composite(field, at, intervals, samples, limits, background, detach_semantic_weights: bool = False) -> RayBundleOutput:
+    """Composite evaluated samples (the pure maths of :mod:`scenelabel.rendering`).
+
+    Skipped samples have σ = 0 and change nothing, so the evaluated ones are moved to the front of
+    each ray: [n_rays, K] with K the largest count, padded with zero-length intervals.
+
+    Args:
+        at: (rows, cols) [n] each, the evaluated samples, row-major (each ray's in order).
+        intervals: (t_starts, t_ends) [n_rays, S] the marched intervals.
+        samples: (sigmas [n], rgbs [n, 3] or None, class_logits [n, C]) at ``at``.
+        limits: (t_min, t_max) [n_rays] the rays' clipped intervals.
+    """
+    rows, cols = at
+    (t_starts, t_ends), (sigmas, rgbs, class_logits), (t_min, t_max) = intervals, samples, limits
+    n_rays = t_starts.shape[0]
+    counts = torch.bincount(rows, minlength=n_rays)  # [n_rays]
+    K = max(int(counts.max()) if counts.numel() else 0, 1)
+    first = torch.cumsum(counts, 0) - counts  # where each ray's samples begin in ``rows``
+    packed = (rows, torch.arange(len(rows), device=rows.device) - first[rows])
+    zeros = t_starts.new_zeros(n_rays, K)
+    starts = zeros.index_put(packed, t_starts[rows, cols])
+    ends = zeros.index_put(packed, t_ends[rows, cols])
+    t_mids = 0.5 * (starts + ends)
+    weights, _, _ = weights_from_density(zeros.index_put(packed, sigmas.to(zeros.dtype)), ends - starts)
+    logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
     composite_classes = (
         class_log_probs_from_scores if field.config.semantic_rendering == "scores" else class_log_probs_from_weights
     )
-    rgb = composite_rgb(weights, rgbs, background) if with_rgb else None
+    rgb = None
+    if rgbs is not None:
+        rgb = composite_rgb(weights, t_starts.new_zeros(n_rays, K, 3).index_put(packed, rgbs.to(zeros.dtype)), background)
     # A ray whose interval is empty (t_max < t_min: it misses the box or [near, far]) reports its
     # t_max (≥ 0): the requested far, or where it leaves the box.
     t_hi = t_max.clamp(min=0.0)
@@ -131,6 +226,6 @@ def render_rays(
         rgb=rgb,
         depth=depth,
         opacity=weights.sum(-1),
-        class_log_probs=composite_classes(weights.detach() if detach_semantic_weights else weights, class_logits),
-        n_evaluated=int(kept_points.shape[0]),
+        class_log_probs=composite_classes(weights.detach() if detach_semantic_weights else weights, logits),
+        n_evaluated=int(rows.shape[0]),
     )

@@ -24,10 +24,19 @@ from .errors import InputError
 from .fields.model import SemanticField3D
 from .io.transforms_json import opengl_to_opencv
 from .frame import SceneFrame
-from .maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, iter_chunks, lattice, uint8_from_unit
+from .maps import (
+    FREE,
+    UNKNOWN,
+    OccupancyMap,
+    block_centers,
+    confidence_from_probs,
+    iter_chunks,
+    lattice,
+    uint8_from_unit,
+)
 from .postprocess import smooth_class_probs
 from .rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
-from .renderer import ray_intervals, render_rays
+from .renderer import ray_intervals, render_rays_early_stop
 from .sampling import OccupancyGrid, march
 from .scene import Cameras, ClassMap
 from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, ray_box_distances, scaled_cameras
@@ -241,7 +250,8 @@ class SemanticField:
     def _render_n(
         self, origins_n: np.ndarray, directions: np.ndarray, near_n=None, far_n=None, with_rgb: bool = True
     ) -> dict[str, np.ndarray]:
-        """Render rays given in the normalised frame, chunk by chunk."""
+        """Render rays given in the normalised frame, chunk by chunk; a ray stops once it is opaque
+        (transmittance below :data:`scenelabel.renderer.EARLY_STOP_TRANS`)."""
         chunk = self.config.sampling.chunk_rays
         background = self.config.train.background
         bg = None if background is None else self._tensor(np.asarray(background))
@@ -252,8 +262,8 @@ class SemanticField:
             nr = None if near_n is None else self._tensor(near_n[i : i + chunk])
             fr = None if far_n is None else self._tensor(far_n[i : i + chunk])
             t_min, t_max = ray_intervals(o, d, self._aabb_n, nr, fr)
-            out = render_rays(
-                self.model, self.occupancy, o, d, t_min, t_max, self._step_n, self._n_samples, None, bg, with_rgb
+            out = render_rays_early_stop(
+                self.model, self.occupancy, o, d, t_min, t_max, self._step_n, self._n_samples, bg, with_rgb
             )
             if with_rgb:
                 outs["rgb"].append(out.rgb.cpu().numpy())
@@ -433,7 +443,7 @@ class SemanticField:
         MAX_SUBSAMPLES), so a thin surface anywhere in the voxel makes it occupied. A voxel with
         occupancy ≥ 0.5 carries the class of its densest sub-sample, others are FREE; its
         ``probs`` are that sub-sample's class probabilities and ``confidence`` their
-        1 - entropy / log C.
+        1 - entropy / log C (:meth:`evaluate_map_block`).
 
         UNKNOWN (occupancy, probs and confidence 0): voxels whose centre lies outside the modelled
         bounds, and with ``visibility`` also every voxel no training camera observed, the map's
@@ -442,9 +452,12 @@ class SemanticField:
         at most one voxel diagonal (√3 · voxel_size) plus one pixel footprint behind the first
         occupied voxel along a camera's pixel ray, a transparent one only when its centre lies in
         front of it. When ``bounds`` leave out part of the modelled bounds, the field's surfaces
-        between a camera and the map occlude too. The map's ``unknown_rule`` says which
-        rule was applied: "visibility", or "bounds" when visibility was off or the checkpoint
-        stores no training cameras.
+        between a camera and the map occlude too (:meth:`map_visibility_inputs`). The map's
+        ``unknown_rule`` says which rule was applied: "visibility", or "bounds" when visibility
+        was off or the checkpoint stores no training cameras.
+
+        The whole map is held in memory; :func:`scenelabel.map_export.write_occupancy_map` writes
+        the same map chunk by chunk into a zarr store (on a Dask cluster too).
 
         Args:
             voxel_size: voxel edge in world units (default: :meth:`default_voxel_size`).
@@ -452,71 +465,129 @@ class SemanticField:
             chunk: voxels per chunk edge.
             visibility: mark voxels no training camera observed as UNKNOWN.
         """
-        voxel_size = self.default_voxel_size() if voxel_size is None else float(voxel_size)
-        if not (np.isfinite(voxel_size) and voxel_size > 0):
-            raise InputError(f"voxel_size must be a positive number, got {voxel_size}", field="voxel_size")
-        box = self.aabb if bounds is None else _as_array(bounds, "bounds", 3)
-        origin, shape = lattice(box[0], box[1], voxel_size, max_voxels=MAX_MAP_VOXELS)
-        n_sub = int(np.clip(np.ceil(voxel_size / (0.5 * self.meta["finest_cell"])), 1, MAX_SUBSAMPLES))
-        offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
-        offsets *= voxel_size  # [S, 3] world offsets from the voxel centre
-        n_classes = self.class_map.num_classes
+        voxel_size, origin, shape = self.map_lattice(voxel_size, bounds)
         label = np.full(shape, UNKNOWN, dtype=np.int16)
         occupancy = np.zeros(shape, dtype=np.float32)
-        probs = np.zeros((*shape, n_classes), dtype=np.uint8)
+        probs = np.zeros((*shape, self.class_map.num_classes), dtype=np.uint8)
         confidence = np.zeros(shape, dtype=np.uint8)
         for sl in iter_chunks(shape, chunk):
-            idx = np.stack(np.meshgrid(*[np.arange(s.start, s.stop) for s in sl], indexing="ij"), -1)
-            block = idx.shape[:3]
-            centres = origin + voxel_size * idx.reshape(-1, 3)  # [V, 3]
-            inside = self._inside(centres)  # [V]
-            pts = (centres[inside][:, None, :] + offsets[None]).reshape(-1, 3)
-            sig_n, sub_logits = self._sigma_logits_n(self.frame.to_internal(pts))
-            sig_n = sig_n.reshape(-1, len(offsets))  # [K, S], K voxels inside the bounds
-            densest = sig_n.argmax(-1)  # [K]
-            occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)  # [K]
-            # only the densest sub-sample's distribution is kept: softmax just those
-            p = _softmax64(sub_logits.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest])
-            block_label = np.full(len(centres), UNKNOWN, dtype=np.int16)
-            block_occ = np.zeros(len(centres), dtype=np.float32)
-            block_probs = np.zeros((len(centres), n_classes), dtype=np.uint8)
-            block_conf = np.zeros(len(centres), dtype=np.uint8)
-            block_label[inside] = np.where(occ >= OCCUPIED_THRESHOLD, self.class_map.ids_from_channels(p.argmax(-1)), FREE)
-            block_occ[inside] = occ
-            block_probs[inside] = uint8_from_unit(p)
-            block_conf[inside] = uint8_from_unit(confidence_from_probs(p))
-            label[sl] = block_label.reshape(block)
-            occupancy[sl] = block_occ.reshape(block)
-            probs[sl] = block_probs.reshape(*block, n_classes)
-            confidence[sl] = block_conf.reshape(block)
-        cameras = self.training_cameras() if visibility else None
-        if cameras is not None:
-            small = scaled_cameras(cameras, DEPTH_MAP_WIDTH)
-            lo = origin - voxel_size / 2.0
-            hi = lo + voxel_size * np.asarray(shape)
-            covers_bounds = bool(np.all(lo <= self.aabb[0]) and np.all(hi >= self.aabb[1]))
-            occluders = None if covers_bounds else self._occluders_outside(small, lo, hi)
-            unseen = ~observed_voxels(label >= 0, origin, voxel_size, small, occluders, chunk)  # [nx, ny, nz]
+            label[sl], occupancy[sl], probs[sl], confidence[sl] = self.evaluate_map_block(origin, voxel_size, sl)
+        inputs = self.map_visibility_inputs(origin, voxel_size, shape) if visibility else None
+        if inputs is not None:
+            cameras, occluders = inputs
+            unseen = ~observed_voxels(label >= 0, origin, voxel_size, cameras, occluders, chunk)  # [nx, ny, nz]
             label[unseen] = UNKNOWN
             occupancy[unseen] = 0.0
             probs[unseen] = 0
             confidence[unseen] = 0
-        colors = self.meta.get("class_colors") or {}
         return OccupancyMap(
             label=label,
             occupancy=occupancy,
             voxel_size=voxel_size,
             origin=origin,
-            classes=self.classes,
-            occupancy_delta=voxel_size,
-            class_colors={i: tuple(colors[i]) for i in self.class_map.ids.tolist() if i in colors} or None,
-            frame_id=self.meta.get("frame_id", "world"),
-            occupancy_threshold=OCCUPIED_THRESHOLD,
             probs=probs,
             confidence=confidence,
-            unknown_rule="visibility" if cameras is not None else "bounds",
-            **self._scale_record(),
+            **self.map_metadata(voxel_size, "visibility" if inputs is not None else "bounds"),
         )
+
+    # ---- the pieces of a map (shared by occupancy_map and scenelabel.map_export) ----
+
+    def map_lattice(
+        self, voxel_size: float | None = None, bounds=None, max_voxels: int = MAX_MAP_VOXELS
+    ) -> tuple[float, np.ndarray, tuple[int, int, int]]:
+        """The voxel lattice of a map (:func:`scenelabel.maps.lattice` over ``bounds``).
+
+        Args:
+            voxel_size: voxel edge in world units (default: :meth:`default_voxel_size`).
+            bounds: (2, 3) world box to cover (default: the modelled bounds).
+            max_voxels: refuse (InputError) a lattice of more voxels than this.
+        Returns:
+            voxel_size (float), origin [3] (world centre of voxel [0, 0, 0]), shape (nx, ny, nz).
+        """
+        voxel_size = self.default_voxel_size() if voxel_size is None else float(voxel_size)
+        if not (np.isfinite(voxel_size) and voxel_size > 0):
+            raise InputError(f"voxel_size must be a positive number, got {voxel_size}", field="voxel_size")
+        box = self.aabb if bounds is None else _as_array(bounds, "bounds", 3)
+        origin, shape = lattice(box[0], box[1], voxel_size, max_voxels=max_voxels)
+        return voxel_size, origin, shape
+
+    def evaluate_map_block(
+        self, origin: np.ndarray, voxel_size: float, block: tuple[slice, slice, slice]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Evaluate one block of a map's lattice (the rule of :meth:`occupancy_map`, before the
+        visibility rule): label, occupancy, probs and confidence of its voxels.
+
+        Args:
+            origin: [3] world centre of voxel [0, 0, 0] of the lattice.
+            voxel_size: voxel edge, world units.
+            block: (slice_i, slice_j, slice_k) with explicit start and stop (:func:`iter_chunks`).
+        Returns:
+            label [bi, bj, bk] int16 (class id, FREE, or UNKNOWN outside the modelled bounds),
+            occupancy [bi, bj, bk] float32, probs [bi, bj, bk, C] uint8, confidence [bi, bj, bk]
+            uint8 (0 where UNKNOWN).
+        """
+        n_sub = int(np.clip(np.ceil(voxel_size / (0.5 * self.meta["finest_cell"])), 1, MAX_SUBSAMPLES))
+        offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
+        offsets *= voxel_size  # [S, 3] world offsets from the voxel centre
+        n_classes = self.class_map.num_classes
+        shape = tuple(s.stop - s.start for s in block)
+        centres = block_centers(origin, voxel_size, block)  # [V, 3]
+        inside = self._inside(centres)  # [V]
+        pts = (centres[inside][:, None, :] + offsets[None]).reshape(-1, 3)
+        sig_n, sub_logits = self._sigma_logits_n(self.frame.to_internal(pts))
+        sig_n = sig_n.reshape(-1, len(offsets))  # [K, S], K voxels inside the bounds
+        densest = sig_n.argmax(-1)  # [K]
+        occ = -np.expm1(-sig_n.max(-1) * self.frame.scale * voxel_size)  # [K]
+        # only the densest sub-sample's distribution is kept: softmax just those
+        p = _softmax64(sub_logits.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest])
+        label = np.full(len(centres), UNKNOWN, dtype=np.int16)
+        occupancy = np.zeros(len(centres), dtype=np.float32)
+        probs = np.zeros((len(centres), n_classes), dtype=np.uint8)
+        confidence = np.zeros(len(centres), dtype=np.uint8)
+        label[inside] = np.where(occ >= OCCUPIED_THRESHOLD, self.class_map.ids_from_channels(p.argmax(-1)), FREE)
+        occupancy[inside] = occ
+        probs[inside] = uint8_from_unit(p)
+        confidence[inside] = uint8_from_unit(confidence_from_probs(p))
+        return label.reshape(shape), occupancy.reshape(shape), probs.reshape(*shape, n_classes), confidence.reshape(shape)
+
+    def map_visibility_inputs(
+        self, origin: np.ndarray, voxel_size: float, shape: tuple[int, int, int]
+    ) -> tuple[Cameras, list[np.ndarray] | None] | None:
+        """What the visibility rule of a map needs from the field, besides the map itself.
+
+        Args:
+            origin: [3] world centre of voxel [0, 0, 0] of the map's lattice.
+            voxel_size: voxel edge, world units.
+            shape: (nx, ny, nz).
+        Returns:
+            None when the checkpoint stores no training cameras (the map falls back to the
+            "bounds" rule); else the training cameras shrunk to depth-map size
+            (:func:`scenelabel.visibility.scaled_cameras`) and, when the lattice does not cover
+            the modelled bounds, their depth maps of the field's surfaces outside it
+            (:meth:`_occluders_outside`, n arrays [h_i, w_i]; None when it covers them).
+        """
+        cameras = self.training_cameras()
+        if cameras is None:
+            return None
+        small = scaled_cameras(cameras, DEPTH_MAP_WIDTH)
+        lo = origin - voxel_size / 2.0
+        hi = lo + voxel_size * np.asarray(shape)
+        covers_bounds = bool(np.all(lo <= self.aabb[0]) and np.all(hi >= self.aabb[1]))
+        return small, None if covers_bounds else self._occluders_outside(small, lo, hi)
+
+    def map_metadata(self, voxel_size: float, unknown_rule: str) -> dict:
+        """The :class:`OccupancyMap` fields of this field's maps other than the arrays, ``origin``
+        and ``voxel_size``: classes, colours, frame, threshold, δ, units, ``unknown_rule``."""
+        colors = self.meta.get("class_colors") or {}
+        return {
+            "classes": self.classes,
+            "occupancy_delta": voxel_size,
+            "class_colors": {i: tuple(colors[i]) for i in self.class_map.ids.tolist() if i in colors} or None,
+            "frame_id": self.meta.get("frame_id", "world"),
+            "occupancy_threshold": OCCUPIED_THRESHOLD,
+            "unknown_rule": unknown_rule,
+            **self._scale_record(),
+        }
 
     def _scale_record(self) -> dict:
         """The map's ``scale_source`` / ``units``: the input's own, or the input's times ``data.scale``."""

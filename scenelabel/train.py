@@ -12,15 +12,17 @@ from typing import Callable
 
 import numpy as np
 import torch
+from torch import nn
 from tqdm import tqdm
 
 from .config import BuildConfig
+from .distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from .errors import TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
 from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
 from .rays import rays_from_cameras
-from .renderer import ray_intervals, render_rays
+from .renderer import RayBundleOutput, ray_intervals, render_rays
 from .sampling import OccupancyGrid
 from .scene import ClassMap, Scene
 
@@ -92,8 +94,42 @@ class TrainState:
     history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
 
 
+class TrainingRender(nn.Module):
+    """The field and its occupancy grid behind one ``forward`` (:func:`render_rays`), so that
+    :class:`~torch.nn.parallel.DistributedDataParallel` can wrap the training render."""
+
+    def __init__(self, model: SemanticField3D, grid: OccupancyGrid, step_size: float, n_samples: int):
+        super().__init__()
+        self.model = model
+        self.grid = grid
+        self.step_size = step_size
+        self.n_samples = n_samples
+
+    def forward(
+        self,
+        origins: torch.Tensor,  # [n_rays, 3]
+        directions: torch.Tensor,  # [n_rays, 3]
+        t_min: torch.Tensor,  # [n_rays]
+        t_max: torch.Tensor,  # [n_rays]
+        jitter: torch.Tensor,  # [n_rays]
+        background: torch.Tensor | None = None,  # [3]
+        detach_semantic_weights: bool = False,
+    ) -> RayBundleOutput:
+        return render_rays(
+            self.model, self.grid, origins, directions, t_min, t_max, self.step_size, self.n_samples, jitter,
+            background, detach_semantic_weights=detach_semantic_weights,
+        )
+
+
 class Trainer:
     """Fits a field to the rays of the training views.
+
+    Data-parallel (``dist.world_size`` > 1, the process group joined, :mod:`scenelabel.distributed`):
+    each rank draws ``ceil(batch_rays / world_size)`` rays per step from its own random stream,
+    the render is wrapped in DistributedDataParallel (gradients averaged over ranks), the
+    occupancy grid is updated from the same cells on every rank and then copied from rank 0, and
+    the logged losses, the loss checks and the elapsed time (which drives the learning-rate
+    schedule and the time budget) are averaged over ranks, so every rank takes the same decisions.
 
     Args:
         model: the field (normalised frame).
@@ -101,13 +137,23 @@ class Trainer:
         rays: training rays.
         config: the resolved build config.
         device: where to train.
+        dist: this process's place in a data-parallel run (default: a single process).
     """
 
-    def __init__(self, model: SemanticField3D, grid: OccupancyGrid, rays: RayData, config: BuildConfig, device: torch.device):
+    def __init__(
+        self,
+        model: SemanticField3D,
+        grid: OccupancyGrid,
+        rays: RayData,
+        config: BuildConfig,
+        device: torch.device,
+        dist: DistContext = DistContext(),
+    ):
         self.model = model.to(device)
         self.grid = grid.to(device)
         self.config = config
         self.device = device
+        self.dist = dist
         tc, sc = config.train, config.sampling
         self.rays = RayData(**{k: v.to(device) for k, v in rays.__dict__.items()})
         # Only rays that cross the box can be learnt from.
@@ -117,6 +163,14 @@ class Trainer:
         diag = float(torch.linalg.norm(model.aabb[1] - model.aabb[0]))
         self.step_size = diag / sc.n_steps
         self.n_samples = sc.n_steps + 1
+        self.render = TrainingRender(self.model, self.grid, self.step_size, self.n_samples)
+        self.batch_rays = -(-tc.batch_rays // dist.world_size)  # rays per rank and step
+        if dist.distributed:
+            self.render = nn.parallel.DistributedDataParallel(
+                self.render,
+                device_ids=[device] if device.type == "cuda" else None,
+                forward_sync_buffers=False,  # the grid is synchronised after each of its updates instead
+            )
         fused = device.type in ("cpu", "cuda")
         self.optimizer = torch.optim.Adam(
             [
@@ -132,7 +186,13 @@ class Trainer:
             class_balance_weights(self.rays.channels, model.num_classes) if tc.class_balance else None
         )
         self.background = None if tc.background is None else torch.tensor(tc.background, device=device)
+        # the grid's random cells: the same stream on every rank; the rays: one stream per rank
         self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
+        self.ray_generator = (
+            torch.Generator(device="cpu").manual_seed(tc.seed + 1_000_003 * (dist.rank + 1))
+            if dist.distributed
+            else self.generator
+        )
         self.state = TrainState()
         pool_rgb = self.rays.rgb[self.ray_pool]
         self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
@@ -173,44 +233,38 @@ class Trainer:
             n_updates = (step - sc.grid_warmup) // sc.grid_update_every
             all_cells = n_updates < GRID_ALL_CELLS_UPDATES
             self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
+            broadcast_module_buffers(self.grid)  # identical already; rank 0's copy makes it certain
         self._set_lr()
-        pick = torch.randint(len(self.ray_pool), (tc.batch_rays,), generator=self.generator)
+        pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
         idx = self.ray_pool[pick.to(self.device)]
-        jitter = torch.rand(tc.batch_rays, generator=self.generator).to(self.device)
+        jitter = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
         r = self.rays
-        out = render_rays(
-            self.model,
-            self.grid,
-            r.origins[idx],
-            r.directions[idx],
-            r.t_min[idx],
-            r.t_max[idx],
-            self.step_size,
-            self.n_samples,
-            jitter,
-            self.background,
+        out = self.render(
+            r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, self.background,
             detach_semantic_weights=tc.detach_semantic_weights,
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         loss = mse + tc.semantic_weight * ce
-        if not torch.isfinite(loss):
+        # the checks see the mean over ranks, so that all ranks stop together
+        mse_mean, ce_mean, loss_mean = all_reduce_mean(torch.stack([mse, ce, loss]).detach()).tolist()
+        if not math.isfinite(loss_mean):
             raise TrainingError(
-                f"the loss became non-finite at step {step} (mse={float(mse.detach())}, ce={float(ce.detach())}); "
+                f"the loss became non-finite at step {step} (mse={mse_mean}, ce={ce_mean}); "
                 "the learning rate is probably too high for this scene"
             )
-        self._check_divergence(float(mse.detach()))
+        self._check_divergence(mse_mean)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         self.state.step += 1
         return {
             "step": self.state.step,
-            "loss": float(loss.detach()),
-            "mse": float(mse.detach()),
-            "ce": float(ce.detach()),
-            "psnr": -10.0 * math.log10(max(float(mse.detach()), 1e-10)),
-            "samples_per_ray": out.n_evaluated / tc.batch_rays,
+            "loss": loss_mean,
+            "mse": mse_mean,
+            "ce": ce_mean,
+            "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
+            "samples_per_ray": out.n_evaluated / self.batch_rays,
         }
 
     def state_dict(self) -> dict:
@@ -238,15 +292,21 @@ class Trainer:
         """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
 
         On Ctrl-C it calls ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
+        Data-parallel: only rank 0 shows progress and calls ``on_checkpoint``.
         """
         tc = self.config.train
         start = time.perf_counter() - self.state.elapsed
+        if not self.dist.is_main:
+            on_checkpoint, progress = None, False
         self.model.train()
         bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
         try:
             while self.state.step < tc.steps:
                 logs = self.train_step()
-                self.state.elapsed = time.perf_counter() - start
+                elapsed = time.perf_counter() - start
+                if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
+                    elapsed = float(all_reduce_mean(torch.tensor([elapsed], dtype=torch.float64, device=self.device))[0])
+                self.state.elapsed = elapsed
                 if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
                     logs["time"] = self.state.elapsed
                     self.state.history.append(logs)

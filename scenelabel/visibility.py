@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -46,13 +47,16 @@ from .rays import rays_from_cameras
 from .scene import Cameras
 
 __all__ = [
+    "CameraSurfaces",
     "DEPTH_MAP_WIDTH",
     "PIXEL_MARGIN",
     "SQRT3",
     "cameras_from_dict",
+    "camera_surfaces",
     "cameras_to_dict",
     "first_occupied_depth",
     "min_depth_over_neighbours",
+    "observed_centres",
     "observed_voxels",
     "project_points",
     "ray_box_distances",
@@ -304,6 +308,81 @@ def first_occupied_depth(
     return out
 
 
+@dataclass(frozen=True)
+class CameraSurfaces:
+    """The first surface along every pixel ray of some (small) cameras: what the visibility rule
+    needs besides the voxel centres (:func:`camera_surfaces`; a few small arrays, picklable).
+
+    Attributes:
+        cameras: n cameras (pinholes; distortion is ignored).
+        depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to the first
+            surface, ``inf`` where the ray meets none.
+        front: n arrays [h_i, w_i]: :func:`min_depth_over_neighbours` of ``depth``.
+    """
+
+    cameras: Cameras
+    depth: list[np.ndarray]
+    front: list[np.ndarray]
+
+
+def camera_surfaces(
+    occupied: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    cameras: Cameras,
+    occluder_depth: Sequence[np.ndarray] | None = None,
+) -> CameraSurfaces:
+    """Cast each camera's pixel rays through a grid's occupied voxels (:func:`first_occupied_depth`,
+    within the camera's near / far): the first step of :func:`observed_voxels`, the one that needs
+    the whole grid.
+
+    Args:
+        occupied: [nx, ny, nz] bool, the grid's occupied voxels.
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        cameras: n cameras (use small ones, :func:`scaled_cameras`).
+        occluder_depth: optional n depth maps [h_i, w_i] of surfaces the grid does not hold (e.g.
+            outside its box); each pixel's surface is the nearer of the two.
+    Returns:
+        CameraSurfaces.
+    """
+    occupied = np.asarray(occupied, dtype=bool)
+    depth = []
+    for i in range(len(cameras)):
+        origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
+        hit = first_occupied_depth(origins, directions, occupied, origin, voxel_size, cameras.near[i], cameras.far[i])
+        hit = hit.reshape(int(cameras.height[i]), int(cameras.width[i]))
+        depth.append(hit if occluder_depth is None else np.minimum(hit, occluder_depth[i]))
+    return CameraSurfaces(cameras, depth, [min_depth_over_neighbours(d) for d in depth])
+
+
+def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: CameraSurfaces) -> np.ndarray:
+    """Which voxels some camera observed, given their centres (the second step of
+    :func:`observed_voxels`, voxel by voxel, so any block of a grid at a time).
+
+    An occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
+    with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
+    sees its centre in front of the nearest surface of its 3x3 pixels (``surfaces.front``, no
+    margin).
+
+    Args:
+        centres: [V, 3] world voxel centres.
+        occupied: [V] bool, which of them are occupied.
+        voxel_size: voxel edge, world units.
+        surfaces: from :func:`camera_surfaces` over the whole grid.
+    Returns:
+        [V] bool.
+    """
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    occ = np.asarray(occupied, dtype=bool).reshape(-1)
+    if len(occ) != len(centres):
+        raise InputError(f"{len(centres)} centres but {len(occ)} occupied flags", field="occupied")
+    seen = np.empty(len(centres), dtype=bool)
+    seen[occ] = visible_from_cameras(centres[occ], surfaces.cameras, surfaces.depth, SQRT3 * voxel_size)
+    seen[~occ] = visible_from_cameras(centres[~occ], surfaces.cameras, surfaces.front, 0.0, pixel_margin=0.0)
+    return seen
+
+
 def observed_voxels(
     occupied: np.ndarray,
     origin: Any,
@@ -315,11 +394,11 @@ def observed_voxels(
     """Which voxels of a grid the cameras observed, the grid's occupied voxels being the surfaces.
 
     Each camera's pixel rays (use small cameras, :func:`scaled_cameras`) are cast through the grid
-    (:func:`first_occupied_depth`, within the camera's near / far). Then an occupied voxel is
-    observed when some camera sees its centre (:func:`visible_from_cameras`) with ``margin =
-    SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees its centre
-    in front of the nearest surface of its 3x3 pixels (:func:`min_depth_over_neighbours`, no
-    margin).
+    (:func:`camera_surfaces`), then every voxel is classified (:func:`observed_centres`): an
+    occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
+    with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
+    sees its centre in front of the nearest surface of its 3x3 pixels
+    (:func:`min_depth_over_neighbours`, no margin).
 
     Args:
         occupied: [nx, ny, nz] bool, the grid's occupied voxels.
@@ -333,20 +412,10 @@ def observed_voxels(
         [nx, ny, nz] bool.
     """
     occupied = np.asarray(occupied, dtype=bool)
-    depth = []
-    for i in range(len(cameras)):
-        origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
-        hit = first_occupied_depth(origins, directions, occupied, origin, voxel_size, cameras.near[i], cameras.far[i])
-        hit = hit.reshape(int(cameras.height[i]), int(cameras.width[i]))
-        depth.append(hit if occluder_depth is None else np.minimum(hit, occluder_depth[i]))
-    front = [min_depth_over_neighbours(d) for d in depth]
+    surfaces = camera_surfaces(occupied, origin, voxel_size, cameras, occluder_depth)
     observed = np.zeros(occupied.shape, dtype=bool)
     for sl, centres in voxel_centers(origin, voxel_size, occupied.shape, chunk):
-        occ = occupied[sl].ravel()  # [V]
-        seen = np.empty(len(centres), dtype=bool)
-        seen[occ] = visible_from_cameras(centres[occ], cameras, depth, SQRT3 * voxel_size)
-        seen[~occ] = visible_from_cameras(centres[~occ], cameras, front, 0.0, pixel_margin=0.0)
-        observed[sl] = seen.reshape(occupied[sl].shape)
+        observed[sl] = observed_centres(centres, occupied[sl], voxel_size, surfaces).reshape(occupied[sl].shape)
     return observed
 
 

@@ -80,6 +80,22 @@ def test_point_cloud_positions_colours_labels_read_back(tmp_path):
     assert len(legacy.points) == 3 and legacy.has_colors()
 
 
+def test_point_cloud_carries_each_voxels_confidence(tmp_path):
+    label = np.full((3, 2, 2), FREE, np.int16)
+    label[0, 0, 0], label[2, 1, 1] = 1, 3
+    confidence = np.zeros(label.shape, np.uint8)
+    confidence[0, 0, 0], confidence[2, 1, 1] = 255, 51  # 1.0 and 0.2
+    occ_map = make_map(label)
+    occ_map = OccupancyMap(
+        occ_map.label, occ_map.occupancy, VS, ORIGIN, CLASSES, VS, class_colors=COLORS, confidence=confidence
+    )
+    pcd = o3d.t.io.read_point_cloud(str(write_point_cloud(occ_map, tmp_path / "points.ply")))
+    by_label = dict(zip(pcd.point.label.numpy().ravel().tolist(), pcd.point.confidence.numpy().ravel().tolist()))
+    assert by_label == pytest.approx({1: 1.0, 3: 0.2}, abs=1e-6)
+    # a map without confidence writes no such property
+    assert b"confidence" not in write_point_cloud(make_map(label), tmp_path / "plain.ply").read_bytes()[:400]
+
+
 def test_point_cloud_of_an_empty_map_and_bad_suffix(tmp_path):
     occ_map = make_map(np.full((2, 2, 2), FREE))
     path = write_point_cloud(occ_map, tmp_path / "empty.ply")

@@ -218,8 +218,24 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
     lines += ["", "Targets (end-to-end issue, 2 cores), checked against the rows above:", ""]
     lines += [f"- {line}" for line in target_lines(rows)]
     lines += ["", f"Raw results: `{path.with_suffix('.json').name}`.", ""]
+    lines += _kept_sections(path)
     path.write_text("\n".join(lines))
     path.with_suffix(".json").write_text(json.dumps(rows, indent=2))
+
+
+KEPT_SECTIONS = ("bench_ddp",)
+"""Sections other scripts write into the same document (between ``<!-- NAME: begin -->`` and
+``<!-- NAME: end -->``): kept as they are when this script rewrites it."""
+
+
+def _kept_sections(path: Path) -> list[str]:
+    text = path.read_text() if path.exists() else ""
+    kept = []
+    for name in KEPT_SECTIONS:
+        begin, end = f"<!-- {name}: begin -->", f"<!-- {name}: end -->"
+        if begin in text and end in text:
+            kept += [begin + text.split(begin, 1)[1].split(end, 1)[0] + end, ""]
+    return kept
 
 
 def pick_lines(rows: list[dict]) -> list[str]:

@@ -1,0 +1,125 @@
+"""renderer.py: sampling + field evaluation + compositing, against a naive float64 loop, and early stopping."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+
+from scenelabel.renderer import ray_intervals, render_rays, render_rays_early_stop
+from scenelabel.warps import BoxWarp
+
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+N_CLASSES = 3
+
+
+class SlabField:
+    """σ = sigma inside the slab x > 0.2 (and a thin haze elsewhere), colour and classes varying with x."""
+
+    def __init__(self, sigma: float, semantic_rendering: str = "probs"):
+        self.sigma = sigma
+        self.warp = BoxWarp(AABB)
+        self.num_classes = N_CLASSES
+        self.config = SimpleNamespace(semantic_rendering=semantic_rendering)
+        self.calls = 0
+
+    def semantics(self, points):
+        self.calls += len(points)
+        x = points[:, 0]
+        sigmas = torch.where(x > 0.2, torch.full_like(x, self.sigma), torch.full_like(x, 0.05))
+        logits = torch.stack([x * 3.0, -x, torch.sin(5 * x)], -1)
+        return sigmas, logits
+
+    def __call__(self, points, directions):
+        sigmas, logits = self.semantics(points)
+        rgbs = torch.sigmoid(torch.stack([points[:, 0], points[:, 1] * 2, points[:, 2] - 1], -1))
+        return sigmas, rgbs, logits
+
+
+def every_cell(points):
+    return torch.ones(points.shape[:-1], dtype=torch.bool)
+
+
+def not_left_half(points):
+    return points[..., 0] > -0.5  # skips part of each ray: packing must keep the order
+
+
+def rays(n=40, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    origins = torch.rand(n, 3, generator=g) * 0.6 - 0.3
+    origins[:, 0] = -0.9
+    directions = torch.nn.functional.normalize(torch.randn(n, 3, generator=g) * 0.3 + torch.tensor([1.0, 0, 0]), dim=-1)
+    directions[-1] = torch.tensor([-1.0, 0.0, 0.0])  # leaves the box at once: hardly any sample
+    t_min, t_max = ray_intervals(origins, directions, AABB)
+    return origins, directions, t_min, t_max
+
+
+def naive_render(field, occupancy, origins, directions, t_min, t_max, step):
+    """Float64 loop over rays and samples: uniform steps of ``step`` from t_min, eq. 2 and eq. 7."""
+    out_rgb, out_depth, out_probs = [], [], []
+    for o, d, a, b in zip(origins.double(), directions.double(), t_min.double(), t_max.double()):
+        t, trans = float(a), 1.0
+        rgb, depth, opacity, probs = np.zeros(3), 0.0, 0.0, np.zeros(N_CLASSES)
+        while t < float(b) - 1e-12:
+            end = min(t + step, float(b))
+            p = (o + 0.5 * (t + end) * d).float()[None]
+            if bool(occupancy(p)[0]):
+                s, c, logits = field(p, d.float()[None])
+                alpha = 1.0 - np.exp(-float(s[0]) * (end - t))
+                w = trans * alpha
+                rgb += w * c[0].double().numpy()
+                depth += w * 0.5 * (t + end)
+                opacity += w
+                probs += w * torch.softmax(logits[0].double(), -1).numpy()
+                trans *= 1.0 - alpha
+            t = end
+        out_rgb.append(rgb)
+        out_depth.append(depth / opacity if opacity > 1e-10 else float(b))
+        out_probs.append(probs / opacity if opacity > 1e-10 else np.full(N_CLASSES, 1.0 / N_CLASSES))
+    return np.array(out_rgb), np.array(out_depth), np.array(out_probs)
+
+
+def test_render_rays_matches_a_naive_float64_loop():
+    field = SlabField(sigma=4.0)
+    o, d, t_min, t_max = rays()
+    step, n_samples = 0.05, 64
+    out = render_rays(field, not_left_half, o, d, t_min, t_max, step, n_samples)
+    rgb, depth, probs = naive_render(field, not_left_half, o, d, t_min, t_max, step)
+    np.testing.assert_allclose(out.rgb.double().numpy(), rgb, atol=2e-5)
+    np.testing.assert_allclose(out.depth.double().numpy(), np.clip(depth, 0, None), atol=2e-5)
+    np.testing.assert_allclose(out.class_log_probs.exp().double().numpy(), probs, atol=2e-5)
+
+
+def test_early_stop_with_zero_threshold_is_the_full_composite():
+    for rendering in ("probs", "scores"):
+        field = SlabField(sigma=30.0, semantic_rendering=rendering)
+        o, d, t_min, t_max = rays()
+        full = render_rays(field, not_left_half, o, d, t_min, t_max, 0.03, 80)
+        stopped = render_rays_early_stop(field, not_left_half, o, d, t_min, t_max, 0.03, 80, min_trans=0.0, segment=7)
+        assert stopped.n_evaluated == full.n_evaluated
+        for name in ("rgb", "depth", "opacity", "class_log_probs"):
+            torch.testing.assert_close(getattr(stopped, name), getattr(full, name), rtol=0, atol=1e-6)
+
+
+def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_threshold():
+    field = SlabField(sigma=200.0)  # opaque within a few samples of x = 0.2
+    o, d, t_min, t_max = rays()
+    full = render_rays(field, every_cell, o, d, t_min, t_max, 0.02, 120)
+    min_trans = 1e-4
+    stopped = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, 0.02, 120, min_trans=min_trans, segment=8)
+    assert stopped.n_evaluated < 0.75 * full.n_evaluated
+    torch.testing.assert_close(stopped.opacity, full.opacity, rtol=0, atol=min_trans)
+    torch.testing.assert_close(stopped.rgb, full.rgb, rtol=0, atol=2 * min_trans)
+    torch.testing.assert_close(stopped.class_log_probs.exp(), full.class_log_probs.exp(), rtol=0, atol=2 * min_trans)
+    span = float((t_max - t_min).max())
+    torch.testing.assert_close(stopped.depth, full.depth, rtol=0, atol=2 * min_trans * span)
+
+
+def test_early_stop_without_colour_and_with_no_samples():
+    field = SlabField(sigma=50.0)
+    o, d, t_min, t_max = rays(5)
+    out = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, 0.05, 40, with_rgb=False)
+    assert out.rgb is None and torch.isfinite(out.depth).all()
+    empty = render_rays_early_stop(field, every_cell, o, d, t_max + 1, t_max, 0.05, 40)  # every interval empty
+    assert empty.n_evaluated == 0
+    torch.testing.assert_close(empty.opacity, torch.zeros(5))
+    torch.testing.assert_close(empty.class_log_probs.exp(), torch.full((5, N_CLASSES), 1 / N_CLASSES))
