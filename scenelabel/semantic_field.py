@@ -280,6 +280,10 @@ class SemanticField:
     def query_rays(self, origins, directions, near=None, far=None, with_rgb: bool = True) -> RayQuery:
         """What each ray hits, how far, and with which class.
 
+        Rays are composited as in training (eq. 2 / eq. 7, no jitter), except that a ray stops
+        once its transmittance is below :data:`scenelabel.renderer.EARLY_STOP_TRANS` (1e-4): the
+        weight it leaves out is at most that.
+
         Args:
             origins: (N, 3) world ray origins.
             directions: (N, 3) world directions; need not be unit length.
