@@ -19,3 +19,16 @@ def toy_build(tmp_path_factory):
     scene = write_toy_scene(root / "scene")
     config = preset("quick", {"train": {"steps": TOY_BUILD_STEPS}})
     return build(scene, root / "out", config, progress=False)
+
+
+@pytest.fixture(scope="session")
+def client():
+    """A 2-worker local Dask cluster (processes, one thread each, as ``--workers 2`` starts),
+    shared by the cluster tests of test_batch.py and test_map_export.py."""
+    from distributed import Client, LocalCluster
+
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        Client(cluster) as dask_client,
+    ):
+        yield dask_client

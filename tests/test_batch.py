@@ -62,18 +62,6 @@ def serial(scenes, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def client():
-    """A 2-worker LocalCluster (processes, one thread each) for the module's cluster tests."""
-    from distributed import Client, LocalCluster
-
-    with (
-        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
-
-
-@pytest.fixture(scope="module")
 def on_cluster(scenes, client, tmp_path_factory):
     """The scenes of ``serial`` as tasks on the LocalCluster: (outcomes, out root)."""
     out_root = tmp_path_factory.mktemp("cluster") / "builds"

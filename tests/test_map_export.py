@@ -192,18 +192,6 @@ def test_a_task_refuses_a_rewritten_checkpoint(toy_build):
 # ---------------------------------------------------------------------------- on a Dask cluster
 
 
-@pytest.fixture(scope="module")
-def client():
-    """A 2-worker local Dask cluster: processes, one thread each."""
-    from distributed import Client, LocalCluster
-
-    with (
-        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
-        Client(cluster) as c,
-    ):
-        yield c
-
-
 @pytest.mark.slow
 def test_two_worker_cluster_writes_the_single_process_map(toy_build, client, tmp_path):
     """Tasks on 2 worker processes (each loads the field from the checkpoint once) write the
