@@ -28,6 +28,7 @@ from ._version import __version__
 from ._files import atomic_write_bytes
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from .config import BuildConfig, config_from_dict, config_to_dict, preset
+from .distributed import DistContext, init_from_env, leave
 from .errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
@@ -37,7 +38,6 @@ from .postprocess import colorize_labels, side_by_side, smooth_class_probs
 from .sampling import OccupancyGrid
 from .scene import UNLABELLED_NAME, Cameras, ClassMap, Scene
 from .semantic_field import TRAIN_CAMERAS_KEY, SemanticField
-from .distributed import DistContext, init_from_env, leave
 from .train import Trainer, rays_for_views
 from .visibility import cameras_to_dict
 from .warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
@@ -328,13 +328,13 @@ def build(
         raise InputError("the output folder is not writable", path=out_dir)
     dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     context, dev = init_from_env(dev)
-    trainer, static, test_idx = prepare_training(scene, config, dev, context)
-
-    def payload(t: Trainer) -> dict:
-        return {**static, **t.state_dict()}
-
     ckpt_path = out_dir / CHECKPOINT_NAME
     try:
+        trainer, static, test_idx = prepare_training(scene, config, dev, context)
+
+        def payload(t: Trainer) -> dict:
+            return {**static, **t.state_dict()}
+
         if resume:
             _resume(trainer, ckpt_path, static)
         state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
