@@ -26,7 +26,7 @@ from scenelabel.io.colmap import (
 )
 from scenelabel.io.llff import read_poses_bounds
 
-DATA = Path(__file__).parents[1] / ".." / "shared" / "data"
+from shared_data import DATA, read_points3d_bin
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
 
@@ -546,22 +546,6 @@ def _fern_camera(tmp_path: Path) -> pycolmap.Camera:
     return model.cameras[1]
 
 
-def _read_points3d_bin(path: Path) -> np.ndarray:
-    """[n, 3] xyz of a COLMAP points3D.bin (a fixed binary layout; pycolmap needs images.bin too)."""
-    data = path.read_bytes()
-    (count,) = struct.unpack_from("<Q", data, 0)
-    offset, xyz = 8, []
-    record = struct.Struct("<QdddBBBd")  # id, x, y, z, r, g, b, reprojection error
-    for _ in range(count):
-        values = record.unpack_from(data, offset)
-        xyz.append(values[1:4])
-        offset += record.size
-        (track_length,) = struct.unpack_from("<Q", data, offset)
-        offset += 8 + 8 * track_length
-    assert offset == len(data)
-    return np.asarray(xyz)
-
-
 def test_fern_model_has_no_images_file() -> None:
     if not (FERN / "sparse" / "0").is_dir():
         pytest.skip("shared data (../shared/data/llff_fern) not present")
@@ -578,7 +562,7 @@ def test_fern_colmap_camera_and_points_agree_with_llff(tmp_path: Path) -> None:
     np.testing.assert_allclose([fx, fy], hwf[:, 2].max(), rtol=1e-12)
     assert (cx, cy) == (hwf[0, 1] / 2, hwf[0, 0] / 2)
     assert distortion[0] == pytest.approx(0.01975, abs=1e-5) and np.all(distortion[1:] == 0)
-    points = _read_points3d_bin(FERN / "sparse" / "0" / "points3D.bin")
+    points = read_points3d_bin(FERN / "sparse" / "0" / "points3D.bin")
     assert len(points) == 10091
     k = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
     for i in range(len(c2w)):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-import struct
 import warnings
 from pathlib import Path
 
@@ -15,7 +14,7 @@ from scenelabel.errors import InputError
 from scenelabel.io import load_scene
 from scenelabel.io.llff import choose_image_folder, llff_to_opencv, load_llff, read_poses_bounds
 
-DATA = Path(__file__).parents[1] / ".." / "shared" / "data"
+from shared_data import DATA, read_points3d_bin
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
 
@@ -214,22 +213,6 @@ def test_llff_labels_without_classes(tmp_path: Path) -> None:
 # real data: fern
 
 
-def _read_points3d_bin(path: Path) -> np.ndarray:
-    """[n, 3] xyz of a COLMAP points3D.bin (no pycolmap needed: a fixed binary layout)."""
-    data = path.read_bytes()
-    (count,) = struct.unpack_from("<Q", data, 0)
-    offset, xyz = 8, []
-    record = struct.Struct("<QdddBBBd")  # id, x, y, z, r, g, b, reprojection error
-    for _ in range(count):
-        values = record.unpack_from(data, offset)
-        xyz.append(values[1:4])
-        offset += record.size
-        (track_length,) = struct.unpack_from("<Q", data, offset)
-        offset += 8 + 8 * track_length  # (image_id int32, point2D_idx int32) per track element
-    assert offset == len(data)
-    return np.asarray(xyz)
-
-
 @pytest.fixture(scope="module")
 def fern():
     if not FERN.is_dir():
@@ -273,7 +256,7 @@ def test_fern_sparse_points_lie_in_front_within_bounds(fern) -> None:
     points_path = FERN / "sparse" / "0" / "points3D.bin"
     if not points_path.is_file():
         pytest.skip("fern points3D.bin not present")
-    points = _read_points3d_bin(points_path)
+    points = read_points3d_bin(points_path)
     assert len(points) == 10091
     for i in range(len(fern)):
         c2w = fern.cameras.c2w[i]

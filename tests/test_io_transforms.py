@@ -16,7 +16,7 @@ from scenelabel.errors import InputError
 from scenelabel.io import load_scene
 from scenelabel.io.transforms_json import OPENGL_TO_OPENCV, load_transforms, opengl_to_opencv
 
-DATA = Path(__file__).parents[1] / ".." / "shared" / "data"
+from shared_data import DATA
 FOX = DATA / "instant_ngp_fox"
 
 WIDTH, HEIGHT = 8, 6

@@ -31,7 +31,7 @@ from scenelabel.sfm import (
 )
 from scenelabel.synthetic import Box, ClassInfo, SyntheticScene, look_at, render_view
 
-DATA = Path(__file__).parents[1] / ".." / "shared" / "data"
+from shared_data import DATA
 SCEAUX = DATA / "openmvg_sceaux_castle"
 FERN = DATA / "llff_fern"
 

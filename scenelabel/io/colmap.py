@@ -280,6 +280,18 @@ def _in_image(points: np.ndarray, c2w: np.ndarray, fx, fy, cx, cy, width, height
     return (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
 
 
+def _pinholes(intrinsics: list[tuple], sizes: list[tuple[int, int]]) -> dict[str, list]:
+    """``Cameras.create`` keywords fx, fy, cx, cy, width, height from per-view (fx, fy, cx, cy, ...) and (w, h)."""
+    return {
+        "fx": [i[0] for i in intrinsics],
+        "fy": [i[1] for i in intrinsics],
+        "cx": [i[2] for i in intrinsics],
+        "cy": [i[3] for i in intrinsics],
+        "width": [size[0] for size in sizes],
+        "height": [size[1] for size in sizes],
+    }
+
+
 def _read_model(folder: str | Path) -> _Model:
     """Read a COLMAP model folder (module docstring); the registered images sorted by name."""
     folder = Path(folder)
@@ -327,12 +339,7 @@ def _read_model(folder: str | Path) -> _Model:
 
     cameras = Cameras.create(
         np.stack(c2ws),
-        fx=[i[0] for i in intrinsics],
-        fy=[i[1] for i in intrinsics],
-        cx=[i[2] for i in intrinsics],
-        cy=[i[3] for i in intrinsics],
-        width=[s[0] for s in sizes],
-        height=[s[1] for s in sizes],
+        **_pinholes(intrinsics, sizes),
         distortion=np.stack([i[4] for i in intrinsics]),
         near=near,
         far=far,
@@ -499,12 +506,7 @@ def load_colmap(path: str | Path, downscale: int = 1) -> Scene:
     picked = model.cameras[np.array(indices)]
     cameras = Cameras.create(
         picked.c2w,
-        fx=[i[0] for i in intrinsics],
-        fy=[i[1] for i in intrinsics],
-        cx=[i[2] for i in intrinsics],
-        cy=[i[3] for i in intrinsics],
-        width=[s[0] for s in sizes],
-        height=[s[1] for s in sizes],
+        **_pinholes(intrinsics, sizes),
         distortion=picked.distortion,
         near=picked.near,
         far=picked.far,
