@@ -102,7 +102,8 @@ def _class_colors(scene: Scene) -> dict[int, list[int]]:
 
 
 def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: float | None, renders_dir: Path | None) -> dict:
-    """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class."""
+    """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class, and
+    each view's render time."""
     class_ids = field.class_ids
     ignore = scene.ignore_index
     conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
@@ -110,12 +111,14 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     per_view, depth_errs = [], []
     colors = field.meta.get("class_colors") or {}
     for i in test:
+        t0 = time.perf_counter()
         out = field.render_camera(scene.cameras, i)
+        render_seconds = time.perf_counter() - t0
         # the smoothing is post-processing of the rendered class probabilities: no second render
         smooth_ids = field.class_map.ids_from_channels(smooth_class_probs(out.probs, smooth_sigma).argmax(-1))
         smoothed_label = np.where(out.label >= 0, smooth_ids, out.label)
         gt = scene.images[i]
-        view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt)}
+        view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
         label = scene.labels[i]
         if label is not None:
             conf += confusion_matrix(out.label, label, class_ids, ignore)
@@ -245,11 +248,14 @@ def prepare_training(
     aabb_n = torch.as_tensor(frame.to_internal(aabb), dtype=torch.float32)
     warp = choose_warp(config.sampling.warp, scene.cameras[train_idx], frame, aabb_n)
     model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+    coarse = None
+    if config.sampling.strategy == "hierarchical":  # NeRF's coarse network: the same architecture
+        coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
     grid = OccupancyGrid(
         warp, config.sampling.grid_resolution, _cell_steps(warp, aabb_n, config), config.sampling.alpha_threshold
     )
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
-    trainer = Trainer(model, grid, rays, config, device, context)
+    trainer = Trainer(model, grid, rays, config, device, context, coarse)
     finest = _finest_cell(config, aabb)
     static = {
         "config": config_to_dict(config),

@@ -18,9 +18,9 @@ from .rendering import (
     depth_from_weights,
     weights_from_density,
 )
-from .sampling import march, ray_aabb_intersect
+from .sampling import importance_sample, march, merge_intervals, ray_aabb_intersect
 
-__all__ = ["RayBundleOutput", "ray_intervals", "render_rays", "render_rays_early_stop"]
+__all__ = ["RayBundleOutput", "ray_intervals", "render_rays", "render_rays_early_stop", "render_rays_hierarchical"]
 
 EARLY_STOP_TRANS = 1e-4
 """Queries stop marching a ray once its transmittance is below this (:func:`render_rays_early_stop`)."""
@@ -170,6 +170,68 @@ def render_rays_early_stop(
     else:  # no sample at all: an empty evaluation keeps the shapes right
         samples = _evaluate(field, origins[:0], directions[:0], with_rgb)
     return _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), background)
+
+
+def render_rays_hierarchical(
+    coarse_field,
+    field,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    n_samples: tuple[int, int],
+    jitter: tuple[torch.Tensor, torch.Tensor] | None = None,
+    background: torch.Tensor | None = None,
+    with_rgb: bool = True,
+    *,
+    detach_semantic_weights: bool = False,
+) -> tuple[RayBundleOutput, RayBundleOutput]:
+    """NeRF's hierarchical sampling (Mildenhall et al. 2020, sec. 5.2) with two networks.
+
+    1. ``n_coarse`` stratified intervals from t_min to t_max, in the spacing of the field's warp
+       (:func:`scenelabel.sampling.march` with a step of (t_max - t_min) / n_coarse per ray),
+       composited through ``coarse_field``;
+    2. ``n_fine`` distances drawn from the coarse weights (:func:`scenelabel.sampling.importance_sample`);
+    3. ``field`` composited at the coarse and fine distances together
+       (:func:`scenelabel.sampling.merge_intervals`): n_coarse + n_fine + 1 intervals.
+    No occupancy grid: every interval of positive length is evaluated.
+
+    Args:
+        coarse_field, field: SemanticField3D-like (see :func:`render_rays`).
+        origins, directions, t_min, t_max: as :func:`render_rays`.
+        n_samples: (n_coarse, n_fine).
+        jitter: (coarse [n_rays] in [0, 1), fine [n_rays, n_fine] in [0, 1)) for training, or None.
+        background, with_rgb, detach_semantic_weights: as :func:`render_rays`.
+    Returns:
+        (fine, coarse) RayBundleOutputs; n_evaluated counts each network's samples.
+    """
+    n_coarse, n_fine = n_samples
+    coarse_jitter, fine_jitter = (None, None) if jitter is None else jitter
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    step = ((t_max - t_min).clamp(min=0.0) / n_coarse)[:, None]  # [n_rays, 1]
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, step, n_coarse + 1, coarse_jitter)
+    coarse, sigmas = _render_intervals(
+        coarse_field, origins, directions, (t_starts, t_ends), (t_min, t_max), (background, with_rgb, detach_semantic_weights)
+    )
+    weights, _, _ = weights_from_density(sigmas.detach(), t_ends - t_starts)
+    t_fine = importance_sample(t_starts, t_ends, weights, n_fine, fine_jitter)
+    intervals = merge_intervals(t_starts, t_ends, t_fine)
+    fine, _ = _render_intervals(
+        field, origins, directions, intervals, (t_min, t_max), (background, with_rgb, detach_semantic_weights)
+    )
+    return fine, coarse
+
+
+def _render_intervals(field, origins, directions, intervals, limits, options):
+    """Evaluate ``field`` at every interval of positive length and composite: (RayBundleOutput,
+    σ [n_rays, S] with 0 at the empty intervals). ``options``: (background, with_rgb, detach_semantic_weights)."""
+    background, with_rgb, detach_semantic_weights = options
+    t_starts, t_ends = intervals
+    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
+    rows, cols = (t_ends > t_starts).nonzero(as_tuple=True)
+    samples = _evaluate(field, points[rows, cols], directions[rows], with_rgb)
+    out = _composite(field, (rows, cols), intervals, samples, limits, background, detach_semantic_weights)
+    return out, t_starts.new_zeros(t_starts.shape).index_put((rows, cols), samples[0].to(t_starts.dtype))
 
 
 def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:

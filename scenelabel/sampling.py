@@ -17,6 +17,8 @@ __all__ = [
     "march_uniform",
     "march_disparity",
     "march",
+    "importance_sample",
+    "merge_intervals",
     "occupied_at",
     "OccupancyGrid",
 ]
@@ -57,7 +59,7 @@ MIN_DISPARITY = 1e-30
 def march_uniform(
     t_min: torch.Tensor,
     t_max: torch.Tensor,
-    step: float,
+    step: float | torch.Tensor,
     n_samples: int,
     jitter: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -69,7 +71,7 @@ def march_uniform(
 
     Args:
         t_min, t_max: [n_rays] (rays that miss have t_max <= t_min: all intervals empty).
-        step: interval length.
+        step: interval length: a float, or [n_rays, 1] (one per ray).
         n_samples: intervals per ray (enough to cover the longest ray: ceil(max length / step) + 1).
         jitter: [n_rays] in [0, 1) or None.
     Returns:
@@ -122,17 +124,77 @@ def march(
     spacing: str,
     t_min: torch.Tensor,
     t_max: torch.Tensor,
-    step: float,
+    step: float | torch.Tensor,
     n_samples: int,
     jitter: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`march_uniform` (``spacing="uniform"``, steps of ``step``) or :func:`march_disparity`
-    (``"disparity"``, ``step`` unused): the spacing a field's warp asks for (``warp.spacing``)."""
+    """:func:`march_uniform` (``spacing="uniform"``, steps of ``step``: a float, or [n_rays, 1] for
+    a step per ray) or :func:`march_disparity` (``"disparity"``, ``step`` unused): the spacing a
+    field's warp asks for (``warp.spacing``)."""
     if spacing == "disparity":
         return march_disparity(t_min, t_max, n_samples, jitter)
     if spacing == "uniform":
         return march_uniform(t_min, t_max, step, n_samples, jitter)
     raise ValueError(f"unknown spacing {spacing!r}")
+
+
+PDF_EPS = 1e-5
+"""Probability mass added to a ray's weights before :func:`importance_sample` draws from them,
+spread over the intervals in proportion to their length (NeRF adds 1e-5 per bin): every interval
+of positive length keeps some probability, and a ray with no weight at all samples uniformly."""
+
+
+def importance_sample(
+    t_starts: torch.Tensor,
+    t_ends: torch.Tensor,
+    weights: torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Distances drawn from the piecewise-constant density the weights put on the intervals
+    (inverse transform sampling: NeRF's hierarchical sampling, Mildenhall et al. 2020, eq. 5).
+
+    The density is p(t) = (w_i + PDF_EPS δ_i / Σ_j δ_j) / Z / δ_i inside interval i, with
+    δ_i = t_ends - t_starts; its CDF is inverted at the stratified quantiles
+    u_k = (k + jitter_k) / n_samples, so the samples come out sorted. Zero-length intervals
+    (past a ray's end) get no samples. A ray whose intervals all have zero length returns its
+    first t_start n_samples times. No gradient flows through the sampling.
+
+    Args:
+        t_starts, t_ends: [n_rays, S] sorted, non-overlapping intervals.
+        weights: [n_rays, S] ≥ 0 (e.g. a coarse render's w_i).
+        n_samples: samples per ray.
+        jitter: [n_rays, n_samples] in [0, 1) (training) or None (0.5: the middle of each stratum).
+    Returns:
+        [n_rays, n_samples] sorted distances inside the rays' intervals.
+    """
+    with torch.no_grad():
+        lengths = (t_ends - t_starts).clamp(min=0.0)  # [n_rays, S]
+        total = lengths.sum(-1, keepdim=True)
+        pdf = weights.detach().clamp(min=0.0) * (lengths > 0) + PDF_EPS * lengths / total.clamp(min=torch.finfo(lengths.dtype).tiny)
+        cdf = torch.cumsum(pdf, -1)
+        cdf = torch.cat([torch.zeros_like(cdf[:, :1]), cdf / cdf[:, -1:].clamp(min=torch.finfo(cdf.dtype).tiny)], -1)
+        k = torch.arange(n_samples, dtype=t_starts.dtype, device=t_starts.device)
+        u = (k + (0.5 if jitter is None else jitter.to(t_starts.dtype))) / n_samples  # [n_rays, n_samples]
+        u = u.expand(t_starts.shape[0], n_samples).contiguous()
+        idx = (torch.searchsorted(cdf.contiguous(), u, right=True) - 1).clamp(0, t_starts.shape[1] - 1)
+        c_lo, c_hi = cdf.gather(-1, idx), cdf.gather(-1, idx + 1)
+        frac = ((u - c_lo) / (c_hi - c_lo).clamp(min=torch.finfo(cdf.dtype).tiny)).clamp(0.0, 1.0)
+        return t_starts.gather(-1, idx) + frac * lengths.gather(-1, idx)
+
+
+def merge_intervals(t_starts: torch.Tensor, t_ends: torch.Tensor, t_new: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Split contiguous intervals at new distances: NeRF's fine samples (the coarse ones and the
+    importance samples, sorted together).
+
+    Args:
+        t_starts, t_ends: [n_rays, S] contiguous (t_starts[:, i + 1] == t_ends[:, i]).
+        t_new: [n_rays, K] distances inside [t_starts[:, 0], t_ends[:, -1]].
+    Returns:
+        t_starts, t_ends: [n_rays, S + K], covering the same span.
+    """
+    edges = torch.cat([t_starts[:, :1], t_ends, t_new.to(t_ends.dtype)], -1).sort(-1).values
+    return edges[:, :-1], edges[:, 1:]
 
 
 def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) -> torch.Tensor:

@@ -36,7 +36,7 @@ from .maps import (
 )
 from .postprocess import smooth_class_probs
 from .rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
-from .renderer import ray_intervals, render_rays_early_stop
+from .renderer import ray_intervals, render_rays_early_stop, render_rays_hierarchical
 from .sampling import OccupancyGrid, march
 from .scene import Cameras, ClassMap
 from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, ray_box_distances, scaled_cameras
@@ -130,8 +130,12 @@ class SemanticField:
         frame: SceneFrame,
         class_map: ClassMap,
         meta: dict,
+        coarse: SemanticField3D | None = None,
     ):
+        """``coarse``: NeRF's coarse network when the field was trained with hierarchical
+        sampling (``sampling.strategy``); rays are then rendered as in training."""
         self.model = model.eval()
+        self.coarse = None if coarse is None else coarse.eval()
         self.occupancy = occupancy
         self.frame = frame
         self.class_map = class_map
@@ -161,11 +165,17 @@ class SemanticField:
         warp = warp_from_dict(data["warp"]) if "warp" in data else BoxWarp(aabb_n)  # before warps: the box
         model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
         model.load_state_dict(data["model"])
+        coarse = None
+        if "coarse_model" in data:
+            coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+            coarse.load_state_dict(data["coarse_model"])
+            coarse = coarse.to(device)
         grid = OccupancyGrid(warp, config.sampling.grid_resolution)
         grid.load_state_dict(data["occupancy"])
-        meta = {k: v for k, v in data.items() if k not in ("model", "occupancy", "optimizer")}
+        meta = {k: v for k, v in data.items() if k not in ("model", "coarse_model", "occupancy", "optimizer")}
         meta["config"] = config
-        return SemanticField(model.to(device), grid.to(device), SceneFrame.from_dict(data["frame"]), class_map, meta)
+        frame = SceneFrame.from_dict(data["frame"])
+        return SemanticField(model.to(device), grid.to(device), frame, class_map, meta, coarse)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -251,8 +261,10 @@ class SemanticField:
         self, origins_n: np.ndarray, directions: np.ndarray, near_n=None, far_n=None, with_rgb: bool = True
     ) -> dict[str, np.ndarray]:
         """Render rays given in the normalised frame, chunk by chunk; a ray stops once it is opaque
-        (transmittance below :data:`scenelabel.renderer.EARLY_STOP_TRANS`)."""
-        chunk = self.config.sampling.chunk_rays
+        (transmittance below :data:`scenelabel.renderer.EARLY_STOP_TRANS`). A field trained with
+        hierarchical sampling renders as in training (coarse, then fine samples; no early stop)."""
+        sampling = self.config.sampling
+        chunk = sampling.chunk_rays
         background = self.config.train.background
         bg = None if background is None else self._tensor(np.asarray(background))
         outs: dict[str, list] = {"rgb": [], "depth": [], "opacity": [], "probs": [], "entered": []}
@@ -262,9 +274,13 @@ class SemanticField:
             nr = None if near_n is None else self._tensor(near_n[i : i + chunk])
             fr = None if far_n is None else self._tensor(far_n[i : i + chunk])
             t_min, t_max = ray_intervals(o, d, self._aabb_n, nr, fr)
-            out = render_rays_early_stop(
-                self.model, self.occupancy, o, d, t_min, t_max, self._step_n, self._n_samples, bg, with_rgb
-            )
+            if self.coarse is not None:
+                hierarchical = (sampling.n_coarse, sampling.n_fine)
+                out, _ = render_rays_hierarchical(self.coarse, self.model, o, d, t_min, t_max, hierarchical, None, bg, with_rgb)
+            else:
+                out = render_rays_early_stop(
+                    self.model, self.occupancy, o, d, t_min, t_max, self._step_n, self._n_samples, bg, with_rgb
+                )
             if with_rgb:
                 outs["rgb"].append(out.rgb.cpu().numpy())
             outs["depth"].append(out.depth.double().cpu().numpy())
@@ -282,7 +298,8 @@ class SemanticField:
 
         Rays are composited as in training (eq. 2 / eq. 7, no jitter), except that a ray stops
         once its transmittance is below :data:`scenelabel.renderer.EARLY_STOP_TRANS` (1e-4): the
-        weight it leaves out is at most that.
+        weight it leaves out is at most that. A field trained with hierarchical sampling
+        (``sampling.strategy``) renders as in training: coarse, then fine samples, no early stop.
 
         Args:
             origins: (N, 3) world ray origins.

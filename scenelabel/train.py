@@ -22,7 +22,7 @@ from .fields.model import SemanticField3D
 from .frame import SceneFrame
 from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
 from .rays import rays_from_cameras
-from .renderer import RayBundleOutput, ray_intervals, render_rays
+from .renderer import RayBundleOutput, ray_intervals, render_rays, render_rays_hierarchical
 from .sampling import OccupancyGrid
 from .scene import ClassMap, Scene
 
@@ -95,15 +95,25 @@ class TrainState:
 
 
 class TrainingRender(nn.Module):
-    """The field and its occupancy grid behind one ``forward`` (:func:`render_rays`), so that
-    :class:`~torch.nn.parallel.DistributedDataParallel` can wrap the training render."""
+    """The training render behind one ``forward``, so that
+    :class:`~torch.nn.parallel.DistributedDataParallel` can wrap it: the field and its occupancy
+    grid (:func:`render_rays`), or, with a coarse field, NeRF's two networks
+    (:func:`render_rays_hierarchical`, ``hierarchical = (n_coarse, n_fine)``)."""
 
-    def __init__(self, model: SemanticField3D, grid: OccupancyGrid, step_size: float, n_samples: int):
+    def __init__(
+        self,
+        model: SemanticField3D,
+        grid: OccupancyGrid,
+        marching: tuple[float, int],
+        coarse: SemanticField3D | None = None,
+        hierarchical: tuple[int, int] = (64, 128),
+    ):
         super().__init__()
         self.model = model
         self.grid = grid
-        self.step_size = step_size
-        self.n_samples = n_samples
+        self.step_size, self.n_samples = marching
+        self.coarse = coarse
+        self.hierarchical = hierarchical
 
     def forward(
         self,
@@ -112,11 +122,19 @@ class TrainingRender(nn.Module):
         t_min: torch.Tensor,  # [n_rays]
         t_max: torch.Tensor,  # [n_rays]
         jitter: torch.Tensor,  # [n_rays]
+        fine_jitter: torch.Tensor | None = None,  # [n_rays, n_fine], with a coarse field
         background: torch.Tensor | None = None,  # [3]
         detach_semantic_weights: bool = False,
-    ) -> RayBundleOutput:
-        return render_rays(
-            self.model, self.grid, origins, directions, t_min, t_max, self.step_size, self.n_samples, jitter,
+    ) -> tuple[RayBundleOutput, RayBundleOutput | None]:
+        """(the field's render, the coarse field's render or None)."""
+        if self.coarse is None:
+            out = render_rays(
+                self.model, self.grid, origins, directions, t_min, t_max, self.step_size, self.n_samples, jitter,
+                background, detach_semantic_weights=detach_semantic_weights,
+            )
+            return out, None
+        return render_rays_hierarchical(
+            self.coarse, self.model, origins, directions, t_min, t_max, self.hierarchical, (jitter, fine_jitter),
             background, detach_semantic_weights=detach_semantic_weights,
         )
 
@@ -138,6 +156,8 @@ class Trainer:
         config: the resolved build config.
         device: where to train.
         dist: this process's place in a data-parallel run (default: a single process).
+        coarse: NeRF's coarse field (``sampling.strategy == "hierarchical"``): trained beside
+            the field with the same losses, its weights choosing where the field is sampled.
     """
 
     def __init__(
@@ -148,8 +168,10 @@ class Trainer:
         config: BuildConfig,
         device: torch.device,
         dist: DistContext = DistContext(),
+        coarse: SemanticField3D | None = None,
     ):
         self.model = model.to(device)
+        self.coarse = None if coarse is None else coarse.to(device)
         self.grid = grid.to(device)
         self.config = config
         self.device = device
@@ -163,7 +185,9 @@ class Trainer:
         diag = float(torch.linalg.norm(model.aabb[1] - model.aabb[0]))
         self.step_size = diag / sc.n_steps
         self.n_samples = sc.n_steps + 1
-        self.render = TrainingRender(self.model, self.grid, self.step_size, self.n_samples)
+        self.render = TrainingRender(
+            self.model, self.grid, (self.step_size, self.n_samples), self.coarse, (sc.n_coarse, sc.n_fine)
+        )
         self.batch_rays = -(-tc.batch_rays // dist.world_size)  # rays per rank and step
         if dist.distributed:
             self.render = nn.parallel.DistributedDataParallel(
@@ -172,10 +196,11 @@ class Trainer:
                 forward_sync_buffers=False,  # the grid is synchronised after each of its updates instead
             )
         fused = device.type in ("cpu", "cuda")
+        fields = [self.model] + ([] if self.coarse is None else [self.coarse])
         self.optimizer = torch.optim.Adam(
             [
-                {"params": model.encoding_parameters(), "lr": tc.lr_encoding},
-                {"params": model.mlp_parameters(), "lr": tc.lr_mlp},
+                {"params": [p for f in fields for p in f.encoding_parameters()], "lr": tc.lr_encoding},
+                {"params": [p for f in fields for p in f.mlp_parameters()], "lr": tc.lr_mlp},
             ],
             betas=(0.9, 0.99),
             eps=1e-15,  # Adam's eps: tiny, as for hash/grid encodings whose gradients are sparse
@@ -238,14 +263,22 @@ class Trainer:
         pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
         idx = self.ray_pool[pick.to(self.device)]
         jitter = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+        fine_jitter = None
+        if self.coarse is not None:
+            fine_jitter = torch.rand(self.batch_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
         r = self.rays
-        out = self.render(
-            r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, self.background,
+        out, coarse_out = self.render(
+            r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, fine_jitter, self.background,
             detach_semantic_weights=tc.detach_semantic_weights,
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         loss = mse + tc.semantic_weight * ce
+        n_evaluated = out.n_evaluated
+        if coarse_out is not None:  # NeRF: the coarse render is supervised alike (logged: the fine one)
+            loss = loss + photometric_mse(coarse_out.rgb, r.rgb[idx])
+            loss = loss + tc.semantic_weight * self._semantic_loss(coarse_out.class_log_probs, r.channels[idx])
+            n_evaluated += coarse_out.n_evaluated
         # the checks see the mean over ranks, so that all ranks stop together
         mse_mean, ce_mean, loss_mean = all_reduce_mean(torch.stack([mse, ce, loss]).detach()).tolist()
         if not math.isfinite(loss_mean):
@@ -264,12 +297,12 @@ class Trainer:
             "mse": mse_mean,
             "ce": ce_mean,
             "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
-            "samples_per_ray": out.n_evaluated / self.batch_rays,
+            "samples_per_ray": n_evaluated / self.batch_rays,
         }
 
     def state_dict(self) -> dict:
         """Everything needed to continue training exactly where it stopped."""
-        return {
+        data = {
             "model": self.model.state_dict(),
             "occupancy": self.grid.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -278,10 +311,15 @@ class Trainer:
             "history": self.state.history,
             "generator": self.generator.get_state(),
         }
+        if self.coarse is not None:
+            data["coarse_model"] = self.coarse.state_dict()
+        return data
 
     def load_state_dict(self, data: dict) -> None:
         """Continue from :meth:`state_dict` output (e.g. a checkpoint)."""
         self.model.load_state_dict(data["model"])
+        if self.coarse is not None:
+            self.coarse.load_state_dict(data["coarse_model"])
         self.grid.load_state_dict(data["occupancy"])
         self.optimizer.load_state_dict(data["optimizer"])
         self.state = TrainState(step=int(data["step"]), elapsed=float(data["elapsed"]), history=list(data.get("history", [])))
@@ -298,7 +336,7 @@ class Trainer:
         start = time.perf_counter() - self.state.elapsed
         if not self.dist.is_main:
             on_checkpoint, progress = None, False
-        self.model.train()
+        self.render.train()
         bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
         try:
             while self.state.step < tc.steps:
@@ -323,5 +361,5 @@ class Trainer:
             raise TrainingInterrupted(f"interrupted at step {self.state.step}") from None
         finally:
             bar.close()
-            self.model.eval()
+            self.render.eval()
         return self.state

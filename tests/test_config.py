@@ -72,3 +72,14 @@ def test_sampling_warp_choices():
     assert preset("fast").sampling.warp == "auto"
     with pytest.raises(ConfigError, match="choose one of"):
         preset("fast", {"sampling": {"warp": "ndc"}})
+
+
+def test_sampling_strategy_and_sample_counts():
+    paper = preset("paper").sampling
+    assert (paper.strategy, paper.n_coarse, paper.n_fine) == ("hierarchical", 64, 128)  # NeRF's coarse 64 + fine 128
+    assert preset("fast").sampling.strategy == "grid"
+    with pytest.raises(ConfigError, match="choose one of"):
+        preset("fast", {"sampling": {"strategy": "proposal"}})
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ConfigError, match="sampling.n_fine"):
+            preset("paper", {"sampling": {"n_fine": bad}})

@@ -18,6 +18,7 @@ VARIANTS = [
     {"train": {"semantic_loss": "focal", "focal_gamma": 2.0}},
     {"train": {"detach_semantic_weights": True}},
     {"field": {"encoding": "positional", "view_encoding": "positional", "hidden": 32, "layers": 4, "skip_layer": 2}},
+    {"sampling": {"strategy": "hierarchical", "n_coarse": 24, "n_fine": 48}},  # NeRF's coarse + fine networks
 ]
 
 
@@ -77,6 +78,7 @@ def test_each_variant_trains_builds_and_answers_queries(tiny_scene, tmp_path, ov
     assert np.mean(losses[-3:]) < 0.8 * np.mean(losses[:3]), losses
     field = SemanticField.load(tmp_path / "out")
     assert field.config.field == config.field and field.config.train.semantic_loss == config.train.semantic_loss
+    assert (field.coarse is not None) == (config.sampling.strategy == "hierarchical")
     q = field.query_points(np.array([[0.0, 0.0, 0.1], [-0.45, -0.25, 0.3]]))
     np.testing.assert_allclose(q.probs.sum(-1), 1.0, atol=1e-9)
     r = field.query_rays(np.array([[0.0, 0.0, 3.0]]), np.array([[0.0, 0.0, -1.0]]))

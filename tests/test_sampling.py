@@ -7,10 +7,13 @@ import torch
 from scenelabel.sampling import (
     MIN_DISPARITY,
     MIN_DISPARITY_T,
+    PDF_EPS,
     OccupancyGrid,
+    importance_sample,
     march,
     march_disparity,
     march_uniform,
+    merge_intervals,
     occupied_at,
     ray_aabb_intersect,
 )
@@ -250,3 +253,81 @@ def test_forward_grid_per_slice_step_gives_per_slice_threshold():
     flat = OccupancyGrid(_forward_warp(), resolution=r, step=0.05, alpha_threshold=alpha)
     flat.update(lambda p: torch.full((len(p),), sigma), decay=0.0, generator=torch.Generator().manual_seed(0))
     assert bool(flat.bits.all()) == (sigma > -np.log1p(-alpha) / 0.05) and flat.bits.unique().numel() == 1
+
+
+def naive_importance_sample(starts, ends, weights, us):
+    """Float64 loop: walk the CDF of (w_i + PDF_EPS δ_i / Σ δ) interval by interval for each u."""
+    lengths = [max(e - s, 0.0) for s, e in zip(starts, ends)]
+    total = sum(lengths)
+    mass = [(w if d > 0 else 0.0) + PDF_EPS * d / total for w, d in zip(weights, lengths)]
+    z = sum(mass)
+    out = []
+    for u in us:
+        acc = 0.0
+        for s, d, m in zip(starts, lengths, mass):
+            if m > 0 and acc + m / z > u:
+                out.append(s + (u - acc) / (m / z) * d)
+                break
+            acc += m / z
+        else:
+            out.append(starts[-1] + lengths[-1])
+    return np.array(out)
+
+
+def test_importance_sample_matches_a_naive_float64_loop():
+    g = torch.Generator().manual_seed(0)
+    n_rays, n_int, n_new = 30, 12, 17
+    lengths = torch.rand(n_rays, n_int, generator=g, dtype=torch.float64) * 0.3
+    lengths[:5, -3:] = 0.0  # zero-length intervals past the ray's end
+    t_ends = 0.5 + torch.cumsum(lengths, -1)
+    t_starts = torch.cat([torch.full((n_rays, 1), 0.5, dtype=torch.float64), t_ends[:, :-1]], -1)
+    weights = torch.rand(n_rays, n_int, generator=g, dtype=torch.float64) ** 4
+    weights[5:8] = 0.0  # nothing seen: uniform along the ray
+    jitter = torch.rand(n_rays, n_new, generator=g, dtype=torch.float64)
+    for j in (None, jitter):
+        t = importance_sample(t_starts, t_ends, weights, n_new, j)
+        assert t.shape == (n_rays, n_new) and torch.all(t[:, 1:] >= t[:, :-1])
+        for r in range(n_rays):
+            u = (np.arange(n_new) + (0.5 if j is None else j[r].numpy())) / n_new
+            ref = naive_importance_sample(t_starts[r].tolist(), t_ends[r].tolist(), weights[r].tolist(), u)
+            np.testing.assert_allclose(t[r].numpy(), ref, rtol=0, atol=1e-9)
+    uniform = importance_sample(t_starts[5:8], t_ends[5:8], weights[5:8], n_new)  # zero weights: evenly spread
+    span = t_ends[5:8, -1:] - t_starts[5:8, :1]
+    expected = t_starts[5:8, :1] + span * (torch.arange(n_new, dtype=torch.float64) + 0.5) / n_new
+    torch.testing.assert_close(uniform, expected)
+
+
+def test_importance_sample_puts_the_samples_where_the_weight_is():
+    t_starts = torch.linspace(0.0, 0.9, 10)[None].repeat(2, 1)
+    t_ends = t_starts + 0.1
+    weights = torch.zeros(2, 10)
+    weights[0, 6] = 1.0
+    weights[1, 2] = weights[1, 7] = 0.5
+    t = importance_sample(t_starts, t_ends, weights, 64)
+    assert torch.all((t[0] >= 0.6) & (t[0] <= 0.7))
+    assert ((t[1] >= 0.2) & (t[1] <= 0.3)).sum() == 32 and ((t[1] >= 0.7) & (t[1] <= 0.8)).sum() == 32
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_importance_sample_is_finite_at_extremes(dtype):
+    # a ray that misses (all intervals empty), one ending at the 1e30 disparity cap, tiny and huge weights
+    t_starts = torch.tensor([[1.0, 1.0, 1.0], [0.1, 1.0, 2.0], [1e-6, 2e-6, 3e-6], [0.0, 1.0, 2.0]], dtype=dtype)
+    t_ends = torch.tensor([[1.0, 1.0, 1.0], [1.0, 2.0, 1e30], [2e-6, 3e-6, 4e-6], [1.0, 2.0, 3.0]], dtype=dtype)
+    weights = torch.tensor([[0.0, 0.0, 0.0], [1e-30, 1.0, 1e-3], [1.0, 0.0, 0.0], [1e-38, 0.0, 1.0]], dtype=dtype)
+    t = importance_sample(t_starts, t_ends, weights, 9, torch.rand(4, 9, dtype=dtype))
+    assert torch.isfinite(t).all()
+    assert torch.all(t >= t_starts[:, :1]) and torch.all(t <= t_ends[:, -1:])
+    torch.testing.assert_close(t[0], torch.ones(9, dtype=dtype))  # the empty ray: its start
+
+
+def test_merge_intervals_splits_the_same_span():
+    t_starts, t_ends = march_uniform(torch.tensor([0.2, 1.0]), torch.tensor([1.4, 1.6]), 0.25, 7, torch.tensor([0.3, 0.0]))
+    t_new = torch.tensor([[0.3, 0.31, 1.39], [1.0, 1.2, 1.6]])
+    starts, ends = merge_intervals(t_starts, t_ends, t_new)
+    assert starts.shape == (2, 10)
+    torch.testing.assert_close(starts[:, 1:], ends[:, :-1])  # contiguous
+    assert torch.all(ends >= starts)
+    torch.testing.assert_close((ends - starts).sum(-1), (t_ends - t_starts).sum(-1))
+    for r in range(2):
+        edges = set(torch.cat([starts[r], ends[r]]).tolist())
+        assert set(t_new[r].tolist()) <= edges and set(t_ends[r].tolist()) <= edges

@@ -1,9 +1,13 @@
-"""Training stops cleanly when it goes wrong, and keeps the last good checkpoint."""
+"""Training stops cleanly when it goes wrong, and keeps the last good checkpoint; NeRF's coarse
+and fine networks train together and resume together."""
 
+import numpy as np
 import pytest
+import torch
 
-from scenelabel import TrainingError, build, preset, write_toy_scene
+from scenelabel import SemanticField, TrainingError, build, load_scene, preset, write_toy_scene
 from scenelabel.checkpoint import load_checkpoint
+from scenelabel.pipeline import prepare_training
 
 pytestmark = pytest.mark.slow
 
@@ -44,3 +48,39 @@ def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch
         build(scene, tmp_path / "out", config, progress=False)
     assert "last checkpoint before the failure" in str(info.value)
     assert load_checkpoint(tmp_path / "out")["step"] == 20
+
+
+HIERARCHICAL = {"sampling": {"strategy": "hierarchical", "n_coarse": 16, "n_fine": 32}, "train": {"batch_rays": 128}}
+
+
+def test_hierarchical_sampling_trains_both_networks_and_resumes_them(scene):
+    config = preset("quick", HIERARCHICAL)
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    assert trainer.coarse is not None
+    before = [p.detach().clone() for p in (*trainer.model.parameters(), *trainer.coarse.parameters())]
+    logs = [trainer.train_step() for _ in range(3)]
+    after = list(trainer.model.parameters()) + list(trainer.coarse.parameters())
+    assert all(not torch.equal(a, b) for a, b in zip(before, after))  # every parameter of both networks moved
+    assert all(np.isfinite(log["loss"]) for log in logs)
+    assert logs[-1]["samples_per_ray"] > 16 + 32  # coarse and fine samples of the rays that enter the box
+    saved = trainer.state_dict()
+    assert "coarse_model" in saved
+    fresh, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    fresh.load_state_dict(saved)
+    for a, b in zip(fresh.coarse.state_dict().values(), trainer.coarse.state_dict().values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert fresh.train_step()["loss"] == trainer.train_step()["loss"]  # the same next step
+
+
+def test_a_hierarchical_build_renders_with_its_coarse_network(scene, tmp_path):
+    config = preset("quick", {**HIERARCHICAL, "output": {"write_map": False, "write_renders": False}})
+    config.train.steps = 20
+    build(scene, tmp_path / "out", config, progress=False)
+    field = SemanticField.load(tmp_path / "out")
+    assert field.coarse is not None and field.config.sampling.strategy == "hierarchical"
+    origins, directions = np.array([[0.0, 0.0, 3.0], [0.1, 0.2, 3.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.1, -1.0]])
+    first, second = field.query_rays(origins, directions), field.query_rays(origins, directions)
+    np.testing.assert_array_equal(first.depth, second.depth)  # no jitter outside training
+    np.testing.assert_allclose(first.probs.sum(-1), 1.0, atol=1e-6)
+    field.coarse = None  # the same fine network marched through the grid instead: a different answer
+    assert not np.array_equal(field.query_rays(origins, directions).depth, first.depth)
