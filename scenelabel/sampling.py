@@ -215,6 +215,13 @@ def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) ->
     return bits[idx[..., 0], idx[..., 1], idx[..., 2]] & inside
 
 
+REBUILD_SAMPLES = 3
+"""Points per axis and cell at which :meth:`OccupancyGrid.rebuild` evaluates the density (27 per cell)."""
+
+REBUILD_DILATE = 1
+"""Cells by which :meth:`OccupancyGrid.rebuild` grows the occupied region."""
+
+
 class OccupancyGrid(nn.Module):
     """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
 
@@ -276,6 +283,41 @@ class OccupancyGrid(nn.Module):
         density[cells] = torch.maximum(density[cells] * decay, sigmas.to(density.device))
         self.density = density.reshape(self.density.shape)
         self.bits = self.density > self.sigma_threshold
+
+    @torch.no_grad()
+    def rebuild(
+        self,
+        density_fn: Callable[[torch.Tensor], torch.Tensor],
+        samples_per_axis: int = REBUILD_SAMPLES,
+        dilate: int = REBUILD_DILATE,
+        chunk: int = 1 << 16,
+    ) -> None:
+        """Recompute every cell from ``density_fn`` as it is now (e.g. at the end of training).
+
+        A cell's density is the largest at the centres of an s x s x s lattice of sub-cells
+        (s = ``samples_per_axis``); it is occupied when that is above the threshold, and the
+        occupied cells are then grown by ``dilate`` cells in every direction. The moving average
+        of :meth:`update` keeps a cell occupied for many refreshes after its density has gone
+        (a decay of 0.95 per refresh); this grid follows the field as it is. The lattice sees
+        any surface thicker than a sub-cell, and the dilation keeps the cells beside those it
+        sees (a surface's faint edge), so what the lattice misses lies next to what it finds.
+        """
+        r, s = self.resolution, samples_per_axis
+        centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s
+        offsets = torch.stack(torch.meshgrid(centres, centres, centres, indexing="ij"), -1).reshape(1, -1, 3)  # [1, s³, 3]
+        cells = torch.arange(r**3)
+        idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()  # [r³, 3]
+        per_chunk = max(chunk // s**3, 1)
+        density = torch.empty(r**3, device=self.density.device)
+        for i in range(0, r**3, per_chunk):
+            unit = ((idx[i : i + per_chunk, None, :] + offsets) / r * 2.0 - 1.0).reshape(-1, 3)
+            sigmas = density_fn(self.warp.inverse(unit.to(self.cube.device))).float()
+            density[i : i + per_chunk] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
+        self.density = density.reshape(r, r, r)
+        bits = (self.density > self.sigma_threshold).float()[None, None]
+        if dilate > 0:
+            bits = torch.nn.functional.max_pool3d(bits, 2 * dilate + 1, stride=1, padding=dilate)
+        self.bits = bits[0, 0] > 0
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         return occupied_at(self.bits, self.cube, self.warp(points))

@@ -329,7 +329,9 @@ class Trainer:
     def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
         """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
 
-        On Ctrl-C it calls ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
+        When training ends, the occupancy grid is rebuilt from the final field
+        (:meth:`~scenelabel.sampling.OccupancyGrid.rebuild`). On Ctrl-C it calls
+        ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
         Data-parallel: only rank 0 shows progress and calls ``on_checkpoint``.
         """
         tc = self.config.train
@@ -355,6 +357,9 @@ class Trainer:
                 if tc.time_budget is not None and self.state.elapsed >= tc.time_budget:
                     bar.write(f"time budget of {tc.time_budget:g} s reached after {self.state.step} steps")
                     break
+            # queries and maps skip space by the grid of the final field, not the lagging average
+            self.grid.rebuild(self.model.density)
+            broadcast_module_buffers(self.grid)
         except KeyboardInterrupt:
             if on_checkpoint is not None:
                 on_checkpoint(self)

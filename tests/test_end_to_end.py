@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 import zarr
 from conftest import TOY_BUILD_STEPS
 
@@ -74,6 +75,23 @@ def test_query_rays_depth_and_label(toy_build):
     assert abs(r.depth[0] - (2.0 - box.hi[2])) < 0.05
     miss = field.query_rays(np.array([[10.0, 10.0, 10.0]]), np.array([[1.0, 0, 0]]))
     assert miss.label[0] == UNKNOWN
+
+
+def test_the_final_grid_skips_space_without_changing_what_rays_hit(toy_build):
+    """The occupancy grid rebuilt from the final field (OccupancyGrid.rebuild) against evaluating
+    the field at every sample: the same labels and depths, with most of the box skipped."""
+    field = SemanticField.load(toy_build.out_dir)
+    rng = np.random.default_rng(0)
+    origins = rng.uniform(field.aabb[0], field.aabb[1], (4000, 3))
+    directions = rng.normal(size=(4000, 3))
+    with_grid = field.query_rays(origins, directions, with_rgb=False)
+    occupied = field.occupancy.occupied_fraction
+    field.occupancy.bits = torch.ones_like(field.occupancy.bits)
+    everywhere = field.query_rays(origins, directions, with_rgb=False)
+    hit = everywhere.opacity >= 0.5  # the depth of a ray through faint haze only means little
+    assert occupied < 0.5
+    assert (with_grid.label == everywhere.label).mean() >= 0.99
+    assert hit.mean() > 0.3 and np.quantile(np.abs(with_grid.depth - everywhere.depth)[hit], 0.99) < 0.01
 
 
 def test_occupancy_map_zarr_round_trip_and_schema(toy_build, tmp_path):

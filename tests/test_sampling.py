@@ -331,3 +331,43 @@ def test_merge_intervals_splits_the_same_span():
     for r in range(2):
         edges = set(torch.cat([starts[r], ends[r]]).tolist())
         assert set(t_new[r].tolist()) <= edges and set(t_ends[r].tolist()) <= edges
+
+
+def naive_rebuild(density, warp, r, s, threshold, dilate):
+    """Float64 loops: each cell's largest density at its s³ sub-cell centres, then a (2 dilate + 1)³ max."""
+    dense = np.zeros((r, r, r), dtype=bool)
+    for i in range(r):
+        for j in range(r):
+            for k in range(r):
+                best = 0.0
+                for a in range(s):
+                    for b in range(s):
+                        for c in range(s):
+                            unit = (np.array([i + (a + 0.5) / s, j + (b + 0.5) / s, k + (c + 0.5) / s]) / r) * 2 - 1
+                            point = warp.inverse(torch.tensor(unit[None], dtype=torch.float32))
+                            best = max(best, float(density(point)[0]))
+                dense[i, j, k] = best > threshold
+    out = np.zeros_like(dense)
+    for i, j, k in zip(*np.nonzero(dense)):
+        out[max(i - dilate, 0) : i + dilate + 1, max(j - dilate, 0) : j + dilate + 1, max(k - dilate, 0) : k + dilate + 1] = True
+    return out
+
+
+@pytest.mark.parametrize("dilate", [0, 1])
+def test_grid_rebuild_matches_a_naive_loop_and_forgets_stale_cells(dilate):
+    aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
+    r, s = 6, 3
+    grid = OccupancyGrid(BoxWarp(aabb), resolution=r, step=0.01, alpha_threshold=0.01)
+
+    def density(p):  # a slab 0.1 thick (under a third of a 0.33 cell) at x = 0.3, faint haze elsewhere
+        return torch.where((p[:, 0] - 0.3).abs() < 0.05, torch.full_like(p[:, 0], 50.0), torch.full_like(p[:, 0], 1e-3))
+
+    grid.update(lambda p: torch.full((len(p),), 1e3), decay=0.95, generator=torch.Generator().manual_seed(0))
+    assert grid.occupied_fraction == 1.0  # a dense field earlier: every cell held occupied
+    grid.rebuild(density, samples_per_axis=s, dilate=dilate, chunk=100)
+    threshold = float(grid.sigma_threshold.flatten()[0])
+    expected = naive_rebuild(density, grid.warp, r, s, threshold, dilate)
+    np.testing.assert_array_equal(grid.bits.numpy(), expected)
+    assert grid(torch.tensor([[0.3, 0.0, 0.0], [0.3, -0.9, 0.9]])).all()  # the slab is never skipped
+    assert not grid(torch.tensor([[-0.9, 0.0, 0.0]])).any()  # far from it: free
+    assert expected.mean() == pytest.approx((1 + 2 * dilate) / r)  # one slice of cells, grown by the dilation
