@@ -2,7 +2,7 @@
 
     .venv/bin/python tools/bench.py                    # the end-to-end targets: docs/benchmarks.md
     .venv/bin/python tools/bench.py --scenes toy --presets quick --out /tmp/b.md
-    .venv/bin/python tools/bench.py --scenes toy room --presets quick fast dense tiny paper --budgets 45 120 \
+    .venv/bin/python tools/bench.py --scenes toy room --presets quick fast dense tiny multihead paper --budgets 45 120 \
         --ablations eq5-sum eq5-max eq3-scores focal detached --ablation-budget 45 --no-queries --plot \
         --out docs/tradeoff.md
 
