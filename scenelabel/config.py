@@ -7,6 +7,7 @@ checkpoint (:func:`config_to_dict`).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 from .errors import ConfigError
@@ -112,6 +113,8 @@ class TrainConfig:
     lr_mlp: float = 5e-3
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
+    # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off)
+    distortion_weight: float = 0.0
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
@@ -127,6 +130,9 @@ class TrainConfig:
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
+        w = self.distortion_weight
+        if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
+            raise ConfigError(f"train.distortion_weight must be a finite number >= 0, got {w!r}")
 
 
 @dataclass

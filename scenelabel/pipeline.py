@@ -203,22 +203,6 @@ def choose_warp(kind: str, cameras: Cameras, frame: SceneFrame, aabb_n: torch.Te
     )
 
 
-def _cell_steps(warp: BoxWarp | ForwardWarp, aabb_n: torch.Tensor, config: BuildConfig) -> float | torch.Tensor:
-    """The marching step through an occupancy-grid cell (normalised units), for its opacity threshold.
-
-    Uniform marching: the box diagonal / n_steps everywhere. Disparity marching (n_steps equal
-    steps of 1/t from near to far): a step at depth t is about t² Δ(1/t), so [R] per depth slice.
-    """
-    n_steps = config.sampling.n_steps
-    if warp.spacing == "disparity":
-        inv_near, inv_far = warp.inv_range.tolist()
-        r = config.sampling.grid_resolution
-        s = (torch.arange(r) + 0.5) / r * 2.0 - 1.0  # slice centres along the cube's depth axis
-        inv_t = inv_near - (s + 1.0) * 0.5 * (inv_near - inv_far)
-        return (inv_near - inv_far) / n_steps / inv_t**2
-    return float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / n_steps
-
-
 def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
     """Channels for the classes in the training masks; one "unlabelled" channel when there are none."""
     if all(scene.labels[i] is None for i in train_idx):
@@ -251,9 +235,8 @@ def prepare_training(
     coarse = None
     if config.sampling.strategy == "hierarchical":  # NeRF's coarse network: the same architecture
         coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
-    grid = OccupancyGrid(
-        warp, config.sampling.grid_resolution, _cell_steps(warp, aabb_n, config), config.sampling.alpha_threshold
-    )
+    sc = config.sampling
+    grid = OccupancyGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
     trainer = Trainer(model, grid, rays, config, device, context, coarse)
     finest = _finest_cell(config, aabb)

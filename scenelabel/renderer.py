@@ -16,9 +16,10 @@ from .rendering import (
     class_log_probs_from_weights,
     composite_rgb,
     depth_from_weights,
+    distortion_from_weights,
     weights_from_density,
 )
-from .sampling import importance_sample, march, merge_intervals, ray_aabb_intersect
+from .sampling import importance_sample, march, merge_intervals, normalized_distances, ray_aabb_intersect
 
 __all__ = ["RayBundleOutput", "ray_intervals", "render_rays", "render_rays_early_stop", "render_rays_hierarchical"]
 
@@ -38,6 +39,7 @@ class RayBundleOutput:
     opacity: torch.Tensor  # [n_rays]
     class_log_probs: torch.Tensor  # [n_rays, C]
     n_evaluated: int  # samples the field evaluated
+    distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
 
 
 def ray_intervals(
@@ -284,10 +286,12 @@ def _composite(field, at, intervals, samples, limits, background, detach_semanti
     # t_max (≥ 0): the requested far, or where it leaves the box.
     t_hi = t_max.clamp(min=0.0)
     depth = depth_from_weights(weights, t_mids, torch.minimum(t_min, t_hi), t_hi)
+    s_starts, s_ends = (normalized_distances(field.warp.spacing, t, t_min, t_max) for t in (starts, ends))
     return RayBundleOutput(
         rgb=rgb,
         depth=depth,
         opacity=weights.sum(-1),
         class_log_probs=composite_classes(weights.detach() if detach_semantic_weights else weights, logits),
         n_evaluated=int(rows.shape[0]),
+        distortion=distortion_from_weights(weights, s_starts, s_ends),
     )

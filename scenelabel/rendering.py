@@ -10,6 +10,9 @@ Samples along a ray i are intervals [t_starts, t_ends) with density σ_i. With �
     P   = Σ w_i softmax(l_i) / Σ w_i       class probabilities                  (eq. 7)
     P'  = softmax(Σ w_i l_i)               scores composited, softmax after     ("eq. 3" variant)
 
+and, as a training regulariser, mip-NeRF 360's distortion of the weights along a ray
+(:func:`distortion_from_weights`).
+
 Transmittance is computed in log space (an exclusive cumulative sum of τ, then one exp) so it
 neither underflows step by step nor loses precision for tiny τ; α uses ``-expm1(-τ)``, exact for
 tiny τ. fp16/bf16 inputs are computed in fp32 (and returned as fp32). σ is clamped to
@@ -41,6 +44,7 @@ __all__ = [
     "class_probs_from_weights",
     "class_log_probs_from_weights",
     "class_log_probs_from_scores",
+    "distortion_from_weights",
 ]
 
 SIGMA_MAX = 1e30
@@ -224,3 +228,35 @@ def class_log_probs_from_scores(weights: torch.Tensor, class_logits: torch.Tenso
     """
     dtype = torch.promote_types(weights.dtype, torch.float32)
     return torch.log_softmax(composite(weights.to(dtype), class_logits.to(dtype)), dim=-1)
+
+
+def distortion_from_weights(weights: torch.Tensor, s_starts: torch.Tensor, s_ends: torch.Tensor) -> torch.Tensor:
+    """The distortion of each ray's weights (Barron et al. 2022, mip-NeRF 360, eq. 15):
+
+        L_dist = Σ_i Σ_j w_i w_j |m_i - m_j| + 1/3 Σ_i w_i² (s_ends_i - s_starts_i),  m = (s_starts + s_ends) / 2
+
+    It is small when a ray's weight sits in one short stretch (a surface) and large when it is
+    spread along the ray (fog, a surface smeared in depth). Computed in O(n_samples) with
+    exclusive cumulative sums (their eq. in appendix: Σ_{i,j} w_i w_j |m_i - m_j| =
+    2 Σ_i w_i (m_i Σ_{j<i} w_j - Σ_{j<i} w_j m_j)), which needs each ray's intervals sorted and
+    not overlapping; intervals of zero weight may come anywhere (padding). No eps: every term is
+    a product of finite inputs.
+
+    Args:
+        weights: [n_rays, n_samples] w_i.
+        s_starts, s_ends: [n_rays, n_samples] interval ends as normalised ray distances s in
+            [0, 1] (:func:`scenelabel.sampling.normalized_distances`), so the loss does not
+            depend on the scene's scale.
+    Returns:
+        [n_rays] L_dist >= 0.
+    """
+    s_starts, s_ends = s_starts.to(weights.dtype), s_ends.to(weights.dtype)
+    mids = 0.5 * (s_starts + s_ends)
+    weighted = weights * mids
+
+    def exclusive_cumsum(x: torch.Tensor) -> torch.Tensor:
+        return torch.cat([torch.zeros_like(x[..., :1]), torch.cumsum(x, -1)[..., :-1]], -1)
+
+    between = 2.0 * (weights * (mids * exclusive_cumsum(weights) - exclusive_cumsum(weighted))).sum(-1)
+    within = (weights**2 * (s_ends - s_starts)).sum(-1) / 3.0
+    return between + within

@@ -17,9 +17,11 @@ __all__ = [
     "march_uniform",
     "march_disparity",
     "march",
+    "normalized_distances",
     "importance_sample",
     "merge_intervals",
     "occupied_at",
+    "cell_steps",
     "OccupancyGrid",
 ]
 
@@ -138,6 +140,32 @@ def march(
     raise ValueError(f"unknown spacing {spacing!r}")
 
 
+def normalized_distances(spacing: str, t: torch.Tensor, t_min: torch.Tensor, t_max: torch.Tensor) -> torch.Tensor:
+    """Distances along rays as the fraction s in [0, 1] of the way from t_min to t_max in the
+    march's spacing (the inverse of :func:`march`'s map from s to t; mip-NeRF 360's normalised
+    ray distance): ``(t - t_min) / (t_max - t_min)`` for uniform spacing, the same in disparity
+    1 / t (clamped as :func:`march_disparity` clamps) for disparity spacing.
+
+    Args:
+        spacing: "uniform" or "disparity" (a warp's ``spacing``).
+        t: [n_rays, n] distances in [t_min, t_max].
+        t_min, t_max: [n_rays].
+    Returns:
+        [n_rays, n] s, clamped to [0, 1]. A ray with an empty interval (t_max <= t_min) has no
+        samples; its s is 0 (the denominator is clamped to the smallest positive float).
+    """
+    if spacing == "disparity":
+        t_lo = t_min.clamp(min=MIN_DISPARITY_T)
+        t_hi = torch.maximum(t_max, t_lo)
+        g, g_min, g_max = (1.0 / x.clamp(min=MIN_DISPARITY_T) for x in (t, t_lo[:, None], t_hi[:, None]))
+        span, offset = g_min - g_max, g_min - g
+    elif spacing == "uniform":
+        span, offset = (t_max - t_min)[:, None], t - t_min[:, None]
+    else:
+        raise ValueError(f"unknown spacing {spacing!r}")
+    return (offset / span.clamp(min=torch.finfo(span.dtype).tiny)).clamp(0.0, 1.0)
+
+
 PDF_EPS = 1e-5
 """Probability mass added to a ray's weights before :func:`importance_sample` draws from them,
 spread over the intervals in proportion to their length (NeRF adds 1e-5 per bin): every interval
@@ -222,6 +250,21 @@ REBUILD_DILATE = 1
 """Cells by which :meth:`OccupancyGrid.rebuild` grows the occupied region."""
 
 
+def cell_steps(warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int) -> float | torch.Tensor:
+    """The marching step through an occupancy-grid cell (normalised units), for its opacity threshold.
+
+    Uniform marching: the box diagonal / n_steps everywhere. Disparity marching (n_steps equal
+    steps of 1/t from near to far): a step at depth t is about t² Δ(1/t), so [resolution] per
+    slice along the cube's depth axis.
+    """
+    if warp.spacing == "disparity":
+        inv_near, inv_far = warp.inv_range.tolist()
+        s = (torch.arange(resolution) + 0.5) / resolution * 2.0 - 1.0  # slice centres along the depth axis
+        inv_t = inv_near - (s + 1.0) * 0.5 * (inv_near - inv_far)
+        return (inv_near - inv_far) / n_steps / inv_t**2
+    return float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / n_steps
+
+
 class OccupancyGrid(nn.Module):
     """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
 
@@ -246,6 +289,14 @@ class OccupancyGrid(nn.Module):
         # σ that makes one step alpha_threshold opaque: [1, 1, 1] or [1, 1, R], broadcast over the grid
         threshold = -math.log1p(-alpha_threshold) / torch.as_tensor(step, dtype=torch.float32)
         self.register_buffer("sigma_threshold", threshold.reshape(1, 1, -1), persistent=False)
+
+    @classmethod
+    def for_march(
+        cls, warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int, alpha_threshold: float
+    ) -> "OccupancyGrid":
+        """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``
+        (:func:`cell_steps`): what training builds and what a loaded field rebuilds."""
+        return cls(warp, resolution, cell_steps(warp, aabb_n, resolution, n_steps), alpha_threshold)
 
     def cell_points(self, cells: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """One random point (normalised frame) in each of ``cells`` (flat indices into the grid): [n, 3]."""

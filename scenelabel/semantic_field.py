@@ -25,6 +25,7 @@ from .fields.model import SemanticField3D
 from .io.transforms_json import opengl_to_opencv
 from .frame import SceneFrame
 from .maps import (
+    ray_box_distances,
     FREE,
     UNKNOWN,
     OccupancyMap,
@@ -39,7 +40,7 @@ from .rays import camera_directions_from_pixels, normalize_directions, pixel_gri
 from .renderer import ray_intervals, render_rays_early_stop, render_rays_hierarchical
 from .sampling import OccupancyGrid, march
 from .scene import Cameras, ClassMap
-from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, ray_box_distances, scaled_cameras
+from .visibility import DEPTH_MAP_WIDTH, cameras_from_dict, observed_voxels, scaled_cameras
 from .warps import BoxWarp, warp_from_dict
 
 __all__ = ["SemanticField", "PointQuery", "RayQuery", "RenderResult", "TRAIN_CAMERAS_KEY"]
@@ -170,7 +171,8 @@ class SemanticField:
             coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
             coarse.load_state_dict(data["coarse_model"])
             coarse = coarse.to(device)
-        grid = OccupancyGrid(warp, config.sampling.grid_resolution)
+        sc = config.sampling
+        grid = OccupancyGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
         grid.load_state_dict(data["occupancy"])
         meta = {k: v for k, v in data.items() if k not in ("model", "coarse_model", "occupancy", "optimizer")}
         meta["config"] = config

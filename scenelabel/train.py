@@ -273,14 +273,17 @@ class Trainer:
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
-        loss = mse + tc.semantic_weight * ce
+        distortion = out.distortion.mean()
+        loss = mse + tc.semantic_weight * ce + tc.distortion_weight * distortion
         n_evaluated = out.n_evaluated
         if coarse_out is not None:  # NeRF: the coarse render is supervised alike (logged: the fine one)
             loss = loss + photometric_mse(coarse_out.rgb, r.rgb[idx])
             loss = loss + tc.semantic_weight * self._semantic_loss(coarse_out.class_log_probs, r.channels[idx])
             n_evaluated += coarse_out.n_evaluated
         # the checks see the mean over ranks, so that all ranks stop together
-        mse_mean, ce_mean, loss_mean = all_reduce_mean(torch.stack([mse, ce, loss]).detach()).tolist()
+        mse_mean, ce_mean, distortion_mean, loss_mean = all_reduce_mean(
+            torch.stack([mse, ce, distortion.to(mse.dtype), loss]).detach()
+        ).tolist()
         if not math.isfinite(loss_mean):
             raise TrainingError(
                 f"the loss became non-finite at step {step} (mse={mse_mean}, ce={ce_mean}); "
@@ -296,6 +299,7 @@ class Trainer:
             "loss": loss_mean,
             "mse": mse_mean,
             "ce": ce_mean,
+            "distortion": distortion_mean,
             "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
             "samples_per_ray": n_evaluated / self.batch_rays,
         }

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .maps import voxel_centers
+from .maps import first_voxel_hits, voxel_centers
 from .rays import rays_from_cameras
 from .scene import Cameras
 
@@ -59,7 +59,6 @@ __all__ = [
     "observed_centres",
     "observed_voxels",
     "project_points",
-    "ray_box_distances",
     "scaled_cameras",
     "visible_from_cameras",
 ]
@@ -73,12 +72,6 @@ PIXEL_MARGIN = 1.0
 SQRT3 = math.sqrt(3.0)
 """A voxel's diagonal over its edge: maps use ``margin = SQRT3 * voxel_size``."""
 
-RAY_STEP_VOXELS = 0.5
-"""Rays cast through a grid are sampled every half voxel (a ray clipping a voxel's edge or corner
-by less than that may pass it)."""
-
-_RAY_CHUNK = 8192  # rays per pass of first_occupied_depth (bounds its memory: chunk x block x 3)
-_SAMPLE_BLOCK = 64  # samples per ray per step of the march; finished rays drop out between blocks
 
 _CAMERA_FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height", "distortion", "near", "far")
 _INT_FIELDS = ("width", "height")
@@ -222,29 +215,6 @@ def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
 
 
-def ray_box_distances(origins: Any, directions: Any, lo: Any, hi: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Where rays cross the box [lo, hi] (slab test, rays extended both ways).
-
-    Args:
-        origins, directions: [R, 3] rays (directions need not be unit; distances are in
-            multiples of them; zero components are fine).
-        lo, hi: [3] box corners.
-    Returns:
-        t_enter, t_exit: [R] float64; ``t_exit < t_enter`` where the line misses the box.
-    """
-    origins = np.asarray(origins, dtype=np.float64)
-    directions = np.asarray(directions, dtype=np.float64)
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta = (lo - origins) / directions  # [R, 3]
-        tb = (hi - origins) / directions
-    parallel = directions == 0
-    within = (origins >= lo) & (origins <= hi)
-    t_lo = np.where(parallel, np.where(within, -np.inf, np.inf), np.minimum(ta, tb))
-    t_hi = np.where(parallel, np.where(within, np.inf, -np.inf), np.maximum(ta, tb))
-    return t_lo.max(-1), t_hi.min(-1)
-
-
 def first_occupied_depth(
     origins: Any,
     directions: Any,
@@ -254,12 +224,9 @@ def first_occupied_depth(
     near: Any = None,
     far: Any = None,
 ) -> np.ndarray:
-    """Distance along each ray to the first occupied voxel of a grid.
-
-    Each ray is clipped to the grid's box (voxel ``[i, j, k]`` covers centre ± voxel_size / 2,
-    centre ``origin + voxel_size * (i, j, k)``) and to ``[near, far]``, then sampled every
-    ``RAY_STEP_VOXELS`` voxel (at the middles of the steps); the answer is the first sample that
-    falls in an occupied voxel.
+    """Distance along each ray to where it enters the first occupied voxel of a grid
+    (:func:`scenelabel.maps.first_voxel_hits`: exact voxel traversal, clipped to the grid's box
+    and ``[near, far]``).
 
     Args:
         origins, directions: [R, 3] world rays, unit directions.
@@ -270,42 +237,7 @@ def first_occupied_depth(
     Returns:
         [R] float64 distance, ``inf`` where the ray meets no occupied voxel.
     """
-    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    occupied = np.asarray(occupied, dtype=bool)
-    if occupied.ndim != 3 or len(origins) != len(directions):
-        raise InputError(
-            f"need occupied [nx, ny, nz] and as many directions as origins, got {occupied.shape}, "
-            f"{len(origins)} origins, {len(directions)} directions",
-            field="occupied",
-        )
-    n = len(origins)
-    near = np.broadcast_to(np.nan if near is None else np.asarray(near, np.float64), (n,))
-    far = np.broadcast_to(np.nan if far is None else np.asarray(far, np.float64), (n,))
-    shape = np.asarray(occupied.shape)
-    corner = np.asarray(origin, np.float64) - voxel_size / 2.0
-    t_enter, t_exit = ray_box_distances(origins, directions, corner, corner + voxel_size * shape)
-    t_enter = np.maximum(t_enter, np.where(np.isfinite(near), near, 0.0))
-    t_exit = np.minimum(t_exit, np.where(np.isfinite(far), far, np.inf))
-    step = voxel_size * RAY_STEP_VOXELS
-    flat = occupied.ravel()
-    offsets = (np.arange(_SAMPLE_BLOCK) + 0.5) * step  # [B] sample distances within a block
-    out = np.full(n, np.inf)
-    for start in range(0, n, _RAY_CHUNK):
-        active = start + np.flatnonzero(t_exit[start : start + _RAY_CHUNK] > t_enter[start : start + _RAY_CHUNK])
-        first_sample = 0
-        while active.size:
-            ts = t_enter[active, None] + first_sample * step + offsets  # [A, B]
-            valid = ts <= t_exit[active, None]
-            pts = origins[active, None, :] + ts[..., None] * directions[active, None, :]  # [A, B, 3]
-            ijk = np.clip(np.floor((pts - corner) / voxel_size).astype(np.int64), 0, shape - 1)
-            hit = valid & flat[np.ravel_multi_index(tuple(np.moveaxis(ijk, -1, 0)), occupied.shape)]  # [A, B]
-            any_hit = hit.any(-1)
-            rows = np.flatnonzero(any_hit)
-            out[active[rows]] = ts[rows, hit[rows].argmax(-1)]
-            active = active[~any_hit & valid[:, -1]]  # not hit and not past the exit yet
-            first_sample += _SAMPLE_BLOCK
-    return out
+    return first_voxel_hits(origins, directions, occupied, origin, voxel_size, near, far)[0]
 
 
 @dataclass(frozen=True)

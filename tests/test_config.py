@@ -37,10 +37,13 @@ def test_unknown_keys_and_presets_are_errors():
         {"field": {"encoding": "hash"}},
         {"train": {"semantic_loss": "dice"}},
         {"train": {"focal_gamma": -1}},
+        {"train": {"distortion_weight": -0.01}},
+        {"train": {"distortion_weight": float("nan")}},
+        {"train": {"distortion_weight": True}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight"):
         preset("fast", overrides)
 
 

@@ -126,3 +126,12 @@ def test_deterministic_for_a_seed(tmp_path):
     assert a.metrics["history"][-1]["loss"] == b.metrics["history"][-1]["loss"]
     pts = np.random.default_rng(0).uniform(-1, 1, (100, 3))
     np.testing.assert_array_equal(a.field.query_points(pts).density, b.field.query_points(pts).density)
+
+
+def test_loaded_grid_keeps_the_training_threshold(toy_build):
+    """The grid a loaded field rebuilds from its own density is the one training left (same
+    marching step, so the same opacity threshold per cell)."""
+    field = SemanticField.load(toy_build.out_dir)
+    stored = field.occupancy.bits.clone()
+    field.occupancy.rebuild(field.model.density)
+    assert torch.equal(field.occupancy.bits, stored)

@@ -17,7 +17,9 @@ from scenelabel.maps import (
     FREE,
     UNKNOWN,
     OccupancyMap,
+    first_voxel_hits,
     index_from_world,
+    ray_box_distances,
     iter_chunks,
     lattice,
     validate_attributes,
@@ -830,3 +832,126 @@ def test_plain_zarr_reader_levels_transform_and_probs(tmp_path, zarr_format):
     i1, j1, k1 = np.floor(np.linalg.solve(T1, np.array([1.7, -0.8, 1.95, 1.0]))[:3] + 0.5).astype(int)
     assert (i1, j1, k1) == (0, 1, 1)  # children [0..1, 2..3, 2..3]
     assert int(level["label"][i1, j1, k1]) >= 0  # occupied, since its child [1, 2, 3] is
+
+
+# ---------------------------------------------------------------------------- rays through a grid
+
+# A 10^3 grid of 0.1 voxels covering [0, 1]^3.
+GRID_ORIGIN = np.array([0.05, 0.05, 0.05])
+GRID_VOXEL = 0.1
+
+
+def naive_first_hit(origin, direction, occupied, near, far, origin_=GRID_ORIGIN, voxel_=GRID_VOXEL):
+    """One ray, every voxel: the slab test against each occupied voxel's box in plain Python; the
+    ray enters a voxel when its interval there, clipped to [near, far], has positive length."""
+    lo = origin_ - voxel_ / 2
+    t_lo = max(0.0, near) if math.isfinite(near) else 0.0
+    t_hi = far if math.isfinite(far) else math.inf
+    best, best_ijk = math.inf, (-1, -1, -1)
+    for ijk in zip(*np.nonzero(occupied)):
+        t0, t1 = t_lo, t_hi
+        for a in range(3):
+            v_lo, v_hi = lo[a] + voxel_ * ijk[a], lo[a] + voxel_ * (ijk[a] + 1)
+            if direction[a] == 0:
+                if not v_lo <= origin[a] <= v_hi:
+                    t0, t1 = math.inf, -math.inf
+                continue
+            ta, tb = (v_lo - origin[a]) / direction[a], (v_hi - origin[a]) / direction[a]
+            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+        if t1 > t0 and t0 < best:
+            best, best_ijk = t0, tuple(int(x) for x in ijk)
+    return best, best_ijk
+
+
+
+@pytest.mark.parametrize("side,fraction", [(10, 0.05), (30, 0.002)])
+def test_first_voxel_hits_matches_naive_loop(side, fraction):
+    """Exact traversal: the same distance and voxel as the slab test against every stop voxel,
+    also for rays that only clip a voxel's edge, rays parallel to a slab and rays from inside;
+    on a sparse grid most of the way is leapt over."""
+    rng = np.random.default_rng(5)
+    occupied = rng.random((side,) * 3) < fraction
+    origins = rng.uniform(-1.5, 2.5, (300, 3))
+    origins[:15] = rng.uniform(0.0, 1.0, (15, 3))  # some start inside the grid
+    directions = rng.uniform(0.0, 1.0, (300, 3)) - origins  # mostly towards the grid
+    directions[20:40, 1] = 0.0  # some rays parallel to a slab
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    near = rng.uniform(0.0, 0.5, 300)
+    near[:10] = np.nan  # unknown limits: 0 and inf
+    far = np.where(rng.random(300) < 0.3, rng.uniform(0.5, 3.0, 300), np.inf)
+    depth, index = first_voxel_hits(origins, directions, occupied, GRID_ORIGIN, GRID_VOXEL, near, far)
+    slow = [naive_first_hit(o, d, occupied, n, f) for o, d, n, f in zip(origins, directions, near, far)]
+    np.testing.assert_allclose(depth, [t for t, _ in slow], rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(index, [ijk for _, ijk in slow])
+    assert np.isfinite(depth).sum() >= 20
+    # starting inside a stop voxel: the hit is at the first distance, in that voxel
+    inside = np.argwhere(occupied)[0]
+    d0, i0 = first_voxel_hits((inside * GRID_VOXEL + GRID_ORIGIN)[None], [[0.0, 0.0, 1.0]], occupied, GRID_ORIGIN, GRID_VOXEL)
+    assert d0[0] == 0.0 and tuple(i0[0]) == tuple(inside)
+    with pytest.raises(InputError, match="stop"):
+        first_voxel_hits(origins, directions[:3], occupied, GRID_ORIGIN, GRID_VOXEL)
+
+
+def test_first_voxel_hits_far_from_the_origin_and_with_tiny_voxels():
+    """A grid 1e6 units away and 1e-6-unit voxels: the distances stay exact to float64 precision."""
+    for offset, voxel in ((1e6, 0.5), (0.0, 1e-6)):
+        stop = np.zeros((8, 8, 8), bool)
+        stop[5, 3, 3] = True
+        origin = np.full(3, offset)
+        start = origin + voxel * np.array([-3.0, 3.2, 3.3])
+        depth, index = first_voxel_hits(start[None], [[1.0, 0.0, 0.0]], stop, origin, voxel)
+        assert tuple(index[0]) == (5, 3, 3)
+        assert depth[0] == pytest.approx(7.5 * voxel, rel=1e-9)
+
+
+def test_cast_rays_hand_built():
+    """A wall of class 3 at i = 2, one UNKNOWN voxel, the rest free."""
+    label = np.full((4, 5, 6), FREE, np.int16)
+    label[2] = 3
+    label[0, 4, 5] = UNKNOWN
+    occupancy = np.where(label == 3, 0.9, 0.1).astype(np.float32)
+    occupancy[label == UNKNOWN] = 0.0
+    m = make_map(label=label, occupancy=occupancy, probs=None, confidence=None)
+    lo, hi = m.bounds  # x from 0.75 to 2.75; the wall's face at x = 0.75 + 2 * 0.5 = 1.75
+    origins = np.array([[0.0, -1.0, 1.1], [0.0, -1.0, 1.1], [0.0, -1.0, 1.1], [1.0, -2.0, 2.75], [0.0, 50.0, 1.0], [1.0, 0.4, 2.75]])
+    directions = np.array([[2.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
+    q = m.cast_rays(origins, directions, far=[np.inf, np.inf, 1.5, np.inf, np.inf, np.inf])
+    np.testing.assert_allclose(q.depth, [1.75, 1.75, np.inf, np.inf, np.inf, 0.15])
+    np.testing.assert_array_equal(q.label, [3, 3, FREE, FREE, UNKNOWN, UNKNOWN])
+    np.testing.assert_array_equal(q.index[:2], [[2, 2, 2], [2, 2, 2]])
+    assert np.all(q.index[2:5] == -1) and tuple(q.index[5]) == (0, 4, 5)
+    assert q.label.dtype == np.int16
+    assert np.all(lo <= origins[3]) and np.all(origins[3] <= hi)
+    with pytest.raises(InputError, match="non-zero"):
+        m.cast_rays(origins[:1], [[0.0, 0.0, 0.0]])
+    with pytest.raises(InputError, match=r"\[N, 3\]"):
+        m.cast_rays(origins, directions[:2])
+
+
+def test_cast_rays_agree_with_label_at_along_the_ray():
+    """On a random map: every voxel a ray passes before its depth is free, and the hit voxel's label
+    is the answer (checked by sampling the ray finely with label_at)."""
+    m = make_map()
+    rng = np.random.default_rng(2)
+    lo, hi = m.bounds
+    origins = rng.uniform(lo - 1.0, hi + 1.0, (200, 3))
+    directions = rng.normal(size=(200, 3))
+    q = m.cast_rays(origins, directions)
+    unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    for o, d, depth, label in zip(origins, unit, q.depth, q.label):
+        t_enter, t_exit = ray_box_distances(o[None], d[None], lo, hi)
+        end = min(depth, t_exit[0])
+        ts = np.linspace(max(t_enter[0], 0.0), end, 400)[1:-1]
+        if ts.size and end > max(t_enter[0], 0.0):
+            assert np.all(m.label_at(o + ts[:, None] * d) == FREE)
+        if np.isfinite(depth):
+            assert m.label_at((o + (depth + 1e-9) * d)[None])[0] == label != FREE
+
+
+def test_ray_box_distances():
+    origins = np.array([[-1.0, 0.5, 0.5], [0.5, 0.5, 0.5], [-1.0, 2.0, 0.5], [0.5, -1.0, 0.5]])
+    directions = np.array([[2.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    t_enter, t_exit = ray_box_distances(origins, directions, [0, 0, 0], [1, 1, 1])
+    np.testing.assert_allclose(t_enter[[0, 1, 3]], [0.5, -0.5, 1.0])  # in multiples of the direction
+    np.testing.assert_allclose(t_exit[[0, 1, 3]], [1.0, 0.5, 2.0])
+    assert t_exit[2] < t_enter[2]  # parallel to a slab, outside it: a miss

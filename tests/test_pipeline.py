@@ -12,7 +12,8 @@ from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.errors import InputError
 from scenelabel.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.io import load_scene
-from scenelabel.pipeline import _cell_steps, choose_warp, split_views
+from scenelabel.pipeline import choose_warp, split_views
+from scenelabel.sampling import cell_steps
 from scenelabel.scene import Cameras
 from scenelabel.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.warps import BoxWarp, ForwardWarp, warp_from_dict
@@ -106,7 +107,8 @@ def test_choose_warp_on_an_orbit(small_toy):
     assert isinstance(choose_warp("auto", scene.cameras, frame, aabb_n), BoxWarp)
     with pytest.raises(InputError, match="not forward-facing"):
         choose_warp("forward", scene.cameras, frame, aabb_n)
-    steps = _cell_steps(box, aabb_n, _small_config())
+    sc = _small_config().sampling
+    steps = cell_steps(box, aabb_n, sc.grid_resolution, sc.n_steps)
     assert isinstance(steps, float)
     assert steps == pytest.approx(float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / _small_config().sampling.n_steps)
 
@@ -131,7 +133,7 @@ def test_choose_warp_on_a_forward_facing_rig():
         assert warp.to_dict()["near"] < 1.5 * frame.scale and warp.to_dict()["far"] > 5.0 * frame.scale * 0.99
     assert isinstance(choose_warp("box", cams, frame, aabb_n), BoxWarp)
     # per-slice steps grow with depth and sum to (about) a ray from near to far
-    steps = _cell_steps(warp, aabb_n, config)
+    steps = cell_steps(warp, aabb_n, config.sampling.grid_resolution, config.sampling.n_steps)
     r, n_steps = config.sampling.grid_resolution, config.sampling.n_steps
     assert steps.shape == (r,) and torch.all(steps[1:] > steps[:-1]) and torch.all(steps > 0)
     inv_near, inv_far = warp.inv_range.tolist()

@@ -15,6 +15,7 @@ from scenelabel.rendering import (
     class_probs_from_weights,
     composite_rgb,
     depth_from_weights,
+    distortion_from_weights,
     weights_from_density,
 )
 
@@ -214,3 +215,56 @@ def test_scores_variant_matches_naive_loop():
     out = class_log_probs_from_scores(w, logits)
     out.exp().sum().backward()
     assert torch.all(torch.isfinite(out.exp())) and torch.all(torch.isfinite(w.grad))
+
+
+def naive_distortion(w, s_starts, s_ends):
+    """mip-NeRF 360 eq. 15 as written: a double loop over sample pairs, float64 Python floats."""
+    out = []
+    for r in range(len(w)):
+        n = len(w[r])
+        mids = [0.5 * (float(s_starts[r][i]) + float(s_ends[r][i])) for i in range(n)]
+        total = sum(float(w[r][i]) * float(w[r][j]) * abs(mids[i] - mids[j]) for i in range(n) for j in range(n))
+        total += sum(float(w[r][i]) ** 2 * (float(s_ends[r][i]) - float(s_starts[r][i])) for i in range(n)) / 3.0
+        out.append(total)
+    return np.array(out)
+
+
+def random_sorted_intervals(rng, n_rays=12, n_samples=9):
+    edges = np.sort(rng.uniform(0.0, 1.0, (n_rays, n_samples + 1)), axis=-1)
+    w = rng.dirichlet(np.ones(n_samples + 1), n_rays)[:, :n_samples]  # a sub-probability per ray
+    return w, edges[:, :-1], edges[:, 1:]
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 1e-6)])
+def test_distortion_matches_naive_double_loop(dtype, tol):
+    w, s0, s1 = random_sorted_intervals(np.random.default_rng(4))
+    got = distortion_from_weights(*(torch.tensor(x, dtype=dtype) for x in (w, s0, s1)))
+    np.testing.assert_allclose(got.double().numpy(), naive_distortion(w, s0, s1), rtol=tol, atol=tol)
+
+
+def test_distortion_is_lower_for_a_surface_than_for_fog_and_ignores_zero_weight_padding():
+    edges = np.linspace(0.0, 1.0, 21)
+    s0, s1 = torch.tensor(edges[None, :-1]), torch.tensor(edges[None, 1:])
+    surface = torch.zeros(1, 20, dtype=torch.float64)
+    surface[0, 10] = 1.0
+    fog = torch.full((1, 20), 1.0 / 20, dtype=torch.float64)
+    assert float(distortion_from_weights(surface, s0, s1)) == pytest.approx(0.05 / 3)  # only the 1/3 w² δ term
+    assert float(distortion_from_weights(fog, s0, s1)) > 10 * float(distortion_from_weights(surface, s0, s1))
+    # the renderer pads rays with zero-weight, zero-length intervals at s = 0 after the real ones
+    pad = torch.zeros(1, 5, dtype=torch.float64)
+    padded = distortion_from_weights(torch.cat([fog, pad], -1), torch.cat([s0, pad], -1), torch.cat([s1, pad], -1))
+    np.testing.assert_allclose(padded.numpy(), distortion_from_weights(fog, s0, s1).numpy(), rtol=1e-12)
+    assert float(distortion_from_weights(torch.zeros(1, 20, dtype=torch.float64), s0, s1)) == 0.0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_distortion_finite_with_finite_gradients_at_the_extremes(dtype):
+    """Weights from 0 to 1 with tiny (1e-38) and full-length intervals: finite values and gradients."""
+    w = torch.tensor([[1.0, 0.0, 0.0], [1e-38, 1e-38, 1.0 - 2e-38], [0.0, 0.0, 0.0], [0.3, 0.3, 0.4]], dtype=dtype)
+    s0 = torch.tensor([[0.0, 0.5, 0.5], [0.0, 1e-38, 2e-38], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=dtype)
+    s1 = torch.tensor([[1.0, 0.5, 1.0], [1e-38, 2e-38, 1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 1.0]], dtype=dtype)
+    w.requires_grad_(True)
+    out = distortion_from_weights(w, s0, s1)
+    out.sum().backward()
+    assert torch.all(torch.isfinite(out)) and torch.all(out >= 0) and torch.all(torch.isfinite(w.grad))
+    np.testing.assert_allclose(out.detach().double().numpy(), naive_distortion(w.detach(), s0, s1), rtol=1e-5, atol=1e-7)

@@ -14,6 +14,7 @@ from scenelabel.sampling import (
     march_disparity,
     march_uniform,
     merge_intervals,
+    normalized_distances,
     occupied_at,
     ray_aabb_intersect,
 )
@@ -371,3 +372,29 @@ def test_grid_rebuild_matches_a_naive_loop_and_forgets_stale_cells(dilate):
     assert grid(torch.tensor([[0.3, 0.0, 0.0], [0.3, -0.9, 0.9]])).all()  # the slab is never skipped
     assert not grid(torch.tensor([[-0.9, 0.0, 0.0]])).any()  # far from it: free
     assert expected.mean() == pytest.approx((1 + 2 * dilate) / r)  # one slice of cells, grown by the dilation
+
+
+def test_normalized_distances_invert_the_march():
+    """The march puts its disparity ends at s = min((k + u) / (n - 1), 1); uniform s is the fraction
+    of the way (a naive float64 loop); both stay in [0, 1] and finite at the extremes."""
+    rng = np.random.default_rng(7)
+    t_min = torch.tensor(np.concatenate([rng.uniform(0.05, 2.0, 30), [0.5, 1e-9, 1.0]]))
+    t_max = torch.tensor(np.concatenate([t_min[:30].numpy() + rng.uniform(0.1, 20.0, 30), [np.inf, 3.0, 1.0]]))
+    u = torch.tensor(rng.uniform(0.0, 1.0, len(t_min)))
+    n = 16
+    _, t_ends = march_disparity(t_min, t_max, n, u)
+    s = normalized_distances("disparity", t_ends, t_min, t_max)
+    expected = ((torch.arange(n)[None, :] + u[:, None]) / (n - 1)).clamp(max=1.0)
+    np.testing.assert_allclose(s[:-1].numpy(), expected[:-1].numpy(), atol=1e-9)  # the last ray is empty
+    assert torch.all(s[-1] == 0.0)
+    t = t_min[:, None] + torch.tensor(rng.uniform(0.0, 1.0, (len(t_min), 5))) * (t_max - t_min).clamp(max=1e6)[:, None]
+    uniform = normalized_distances("uniform", t, t_min, t_max)
+    for r in range(30):
+        for k in range(5):
+            ref = (float(t[r, k]) - float(t_min[r])) / (float(t_max[r]) - float(t_min[r]))
+            assert float(uniform[r, k]) == pytest.approx(ref, rel=1e-12, abs=1e-15)
+    for spacing in ("uniform", "disparity"):
+        out = normalized_distances(spacing, t.float(), t_min.float(), t_max.float())
+        assert torch.all(torch.isfinite(out)) and torch.all((out >= 0) & (out <= 1))
+    with pytest.raises(ValueError, match="spacing"):
+        normalized_distances("log", t, t_min, t_max)

@@ -84,3 +84,19 @@ def test_a_hierarchical_build_renders_with_its_coarse_network(scene, tmp_path):
     np.testing.assert_allclose(first.probs.sum(-1), 1.0, atol=1e-6)
     field.coarse = None  # the same fine network marched through the grid instead: a different answer
     assert not np.array_equal(field.query_rays(origins, directions).depth, first.depth)
+
+
+def test_distortion_loss_gathers_the_weights_along_rays(scene):
+    """With train.distortion_weight the logged distortion (mip-NeRF 360 eq. 15 of the batch's rays)
+    ends lower than without it, from the same start; the loss includes it."""
+    final = {}
+    for weight in (0.0, 0.05):
+        config = preset("quick", {"train": {"steps": 150, "distortion_weight": weight}})
+        trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+        logs = [trainer.train_step() for _ in range(150)]
+        assert all(np.isfinite(log["distortion"]) and log["distortion"] >= 0 for log in logs)
+        if weight:
+            log = logs[-1]
+            assert log["loss"] > log["mse"] + config.train.semantic_weight * log["ce"]  # the term is in the loss
+        final[weight] = np.mean([log["distortion"] for log in logs[-20:]])
+    assert final[0.05] < final[0.0]
