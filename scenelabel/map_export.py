@@ -19,9 +19,10 @@ visibility rule) and :func:`scenelabel.maps.pool_block` (the pyramid), the same 
 Passes, each over zarr chunks (a task writes whole chunks, so concurrent writers never share one):
 
 1. evaluate the field per chunk and write ``label``, ``occupancy``, ``probs``, ``confidence``;
-2. read the occupied voxels back from ``label`` (one bool per voxel, the one global array), cast
-   the training cameras' small depth maps through them once (plus the field's surfaces outside
-   the map's box when ``bounds`` cut the field), then apply the visibility rule per chunk;
+2. read the opacities back from ``occupancy`` as uint8 codes (one byte per voxel, the one global
+   array), cast the training cameras' small depth maps through them once to their surfaces
+   (transmittance 0.5; plus the field's surfaces outside the map's box when ``bounds`` cut the
+   field), then per chunk make the surface voxels occupied and apply the visibility rule;
 3. write each pyramid level's chunks from level 0 (a coarse voxel pools its ``2^L``³ level-0
    children, exactly as ``OccupancyMap.downsample(2 ** L)``).
 
@@ -49,6 +50,7 @@ from .maps import (
     OCCUPANCY_ARRAY,
     PROBS_ARRAY,
     PYRAMID_FACTOR,
+    FREE,
     QUANTISED_DTYPE,
     UNKNOWN,
     OccupancyMap,
@@ -61,14 +63,15 @@ from .maps import (
     block_centers,
     iter_chunks,
     pool_block,
+    uint8_from_unit,
 )
-from .semantic_field import SemanticField
-from .visibility import CameraSurfaces, camera_surfaces, observed_centres
+from .semantic_field import OCCUPIED_THRESHOLD, SemanticField
+from .visibility import CameraSurfaces, camera_surfaces, observed_centres, surface_mask
 
 __all__ = ["write_occupancy_map", "MAX_EXPORT_VOXELS", "EVAL_BLOCK"]
 
 MAX_EXPORT_VOXELS = 1 << 33
-"""write_occupancy_map refuses lattices larger than this (8.6e9 voxels: an 8 GiB occupied grid)."""
+"""write_occupancy_map refuses lattices larger than this (8.6e9 voxels: an 8 GiB grid of opacity codes)."""
 
 EVAL_BLOCK = 32
 """The field is evaluated at most this many voxels per axis at a time (as ``occupancy_map``'s
@@ -143,13 +146,10 @@ def _open_arrays(store: str, level: int = 0) -> dict[str, Any]:
 
 def _evaluate_chunk(
     source: SemanticField | _Checkpoint, store: str, origin: np.ndarray, voxel_size: float, chunk: Block
-) -> int:
+) -> None:
     """Pass 1: evaluate the field on one zarr chunk of level 0 and write its four arrays.
 
     The chunk is evaluated in blocks of at most :data:`EVAL_BLOCK` voxels per axis.
-
-    Returns:
-        the chunk's number of occupied voxels.
     """
     field = _field(source)
     shape = tuple(s.stop - s.start for s in chunk)
@@ -163,7 +163,6 @@ def _evaluate_chunk(
     arrays = _open_arrays(store)
     for name, data in zip(_ARRAYS, (label, occupancy, probs, confidence)):
         arrays[name][chunk] = data
-    return int((label >= 0).sum())
 
 
 def _visibility_inputs(
@@ -174,25 +173,33 @@ def _visibility_inputs(
 
 
 def _apply_visibility_chunk(
-    store: str, origin: np.ndarray, voxel_size: float, chunk: Block, surfaces: CameraSurfaces
+    store: str, origin: np.ndarray, voxel_size: float, chunk: Block, surfaces: CameraSurfaces, class_ids: list[int]
 ) -> int:
-    """Pass 2: mark the voxels of one zarr chunk of level 0 that no camera observed UNKNOWN
-    (occupancy, probs and confidence 0 there).
+    """Pass 2: in one zarr chunk of level 0, make the voxels a camera's surface lies in occupied
+    (the class of their most probable ``probs`` channel, occupancy raised to the threshold), then mark the voxels no camera observed
+    UNKNOWN (occupancy, probs and confidence 0 there).
 
     Returns:
         how many voxels became UNKNOWN.
     """
     arrays = _open_arrays(store)
     label = arrays[LABEL_ARRAY][chunk]
+    surface = surface_mask(surfaces, chunk) & (label == FREE)
+    if surface.any():  # as SemanticField.occupancy_map: the surface's class, occupancy raised to the threshold
+        label[surface] = np.asarray(class_ids)[arrays[PROBS_ARRAY][chunk][surface].argmax(-1)]
+        occupancy = arrays[OCCUPANCY_ARRAY][chunk]
+        occupancy[surface] = OCCUPIED_THRESHOLD
+        arrays[OCCUPANCY_ARRAY][chunk] = occupancy
     known = np.flatnonzero(label.reshape(-1) != UNKNOWN)  # outside the bounds: UNKNOWN already
     centres = block_centers(origin, voxel_size, chunk)[known]  # [K, 3]
     seen = observed_centres(centres, label.reshape(-1)[known] >= 0, voxel_size, surfaces)  # [K]
     unseen = np.zeros(label.size, dtype=bool)
     unseen[known[~seen]] = True
     unseen = unseen.reshape(label.shape)
-    if unseen.any():
+    if unseen.any() or surface.any():
         label[unseen] = UNKNOWN
         arrays[LABEL_ARRAY][chunk] = label
+    if unseen.any():
         for name in (OCCUPANCY_ARRAY, PROBS_ARRAY, CONFIDENCE_ARRAY):
             data = arrays[name][chunk]
             data[unseen] = 0
@@ -305,9 +312,10 @@ def write_occupancy_map(
     Memory: the map's arrays are never held whole. A task holds one zarr chunk of each array
     (pass 1 evaluates it :data:`EVAL_BLOCK`³ voxels at a time; a pyramid chunk reads its level-0
     children in blocks of at most ``max(chunks, 2^L)`` per axis). The one global array is the
-    occupied grid, ``[nx, ny, nz]`` bool (1 byte per voxel), read back from ``label`` chunk by
-    chunk in this process to cast the training cameras' depth maps through it (at most 80 pixels
-    wide, two float64 maps per camera), which every visibility task then gets.
+    grid of opacity codes, ``[nx, ny, nz]`` uint8 (1 byte per voxel), read back from
+    ``occupancy`` chunk by chunk in this process to cast the training cameras' depth maps through
+    it (at most 80 pixels wide, two float64 maps per camera, and the voxels their surfaces lie
+    in), which every visibility task then gets.
 
     Args:
         source: a build folder or its checkpoint.pt (tasks load the field from it, once per
@@ -361,9 +369,7 @@ def write_occupancy_map(
         level0 = list(iter_chunks(shape, array_chunks(chunks, shape)))
 
         # pass 1: the field, chunk by chunk
-        n_occupied = sum(
-            _run(client, _evaluate_chunk, [(task_source, store, origin, voxel_size, c) for c in level0], "map: evaluate", progress)
-        )
+        _run(client, _evaluate_chunk, [(task_source, store, origin, voxel_size, c) for c in level0], "map: evaluate", progress)
 
         # pass 2: the visibility rule
         if not visibility:
@@ -374,15 +380,15 @@ def write_occupancy_map(
             inputs = _visibility_inputs(field, origin, voxel_size, shape)
         if inputs is not None:
             cameras, occluders = inputs
-            label = root[LABEL_ARRAY]
-            occupied = np.zeros(shape, dtype=bool)  # the one global array: 1 byte per voxel
-            if n_occupied:
-                for c in level0:
-                    occupied[c] = label[c] >= 0
-            surfaces = camera_surfaces(occupied, origin, voxel_size, cameras, occluders)
-            del occupied
+            occupancy = root[OCCUPANCY_ARRAY]
+            codes = np.zeros(shape, dtype=QUANTISED_DTYPE)  # the one global array: 1 byte per voxel
+            for c in level0:
+                codes[c] = uint8_from_unit(occupancy[c])
+            surfaces = camera_surfaces(codes, origin, voxel_size, cameras, occluders)
+            del codes
             shared = surfaces if client is None else client.scatter(surfaces, broadcast=True)
-            calls = [(store, origin, voxel_size, c, shared) for c in level0]
+            class_ids = field.class_ids.tolist()
+            calls = [(store, origin, voxel_size, c, shared, class_ids) for c in level0]
             _run(client, _apply_visibility_chunk, calls, "map: visibility", progress)
 
         # pass 3: the pyramid, every level from level 0

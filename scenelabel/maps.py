@@ -10,7 +10,8 @@ Numpy only (no torch). Conventions (docs/conventions.md, "Occupancy grids"):
   :data:`UNKNOWN` = -2 (not observed: outside the modelled bounds, and with ``unknown_rule``
   "visibility" also seen by no training camera).
 - ``occupancy`` is float32 in [0, 1]: ``1 - exp(-sigma * occupancy_delta)`` where the field was
-  evaluated, and 0 where the label is UNKNOWN.
+  evaluated (raised to the threshold in voxels a training camera's surface lies in, with
+  ``unknown_rule`` "visibility"), and 0 where the label is UNKNOWN.
 - Optional ``probs``: uint8 [nx, ny, nz, C], the class distribution quantised (code / 255),
   channel c for the c-th class of ``classes`` (ascending id); 0 where UNKNOWN.
 - Optional ``confidence``: uint8 [nx, ny, nz], ``1 - entropy / log C`` quantised (code / 255);
@@ -69,6 +70,7 @@ __all__ = [
     "world_from_index",
     "ray_box_distances",
     "first_voxel_hits",
+    "transmittance_crossings",
     "MapRayQuery",
     "validate_attributes",
     "load_schema",
@@ -347,16 +349,82 @@ def first_voxel_hits(
         depth: [R] float64 distance where the ray enters its first ``stop`` voxel, ``inf`` where
             it meets none; index: [R, 3] int64 that voxel's index, -1 where none.
     """
+    stop = np.asarray(stop, dtype=bool)
+    if stop.ndim != 3:
+        raise InputError(f"need stop [nx, ny, nz], got {stop.shape}", field="stop")
+    # an opaque voxel: infinite optical depth, so any positive threshold is crossed where the ray enters it
+    opaque = np.array([0.0, np.inf])
+    return _optical_depth_crossings(origins, directions, stop.view(np.uint8), opaque, origin, voxel_size, near, far, 1.0)
+
+
+def transmittance_crossings(
+    origins: Any,
+    directions: Any,
+    occupancy: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    near: Any = None,
+    far: Any = None,
+    transmittance: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each ray's transmittance through a grid of per-voxel opacities falls to ``transmittance``.
+
+    A voxel of opacity ``a`` (a map's ``occupancy``: ``1 - exp(-sigma * voxel_size)``) holds the
+    constant density ``sigma = -log(1 - a) / voxel_size``; a ray's transmittance after crossing
+    lengths ``l_v`` of voxels ``v`` is ``T = exp(-sum_v sigma_v l_v)`` (NeRF eq. 1, integrated
+    exactly for piecewise-constant density). The crossing is where ``sum sigma_v l_v`` reaches
+    ``-log(transmittance)``; with 0.5 that is the ray's median termination depth, the depth a
+    volume renderer's surface sits at. Opacities are quantised to codes ``round(a * 255)`` first
+    (:func:`uint8_from_unit`, as a map's probs are), so the answer is the same for a map in
+    memory and one read back chunk by chunk; code 255 is opaque (infinite density: the crossing
+    is where the ray enters), code 0 empty (leapt over as in :func:`first_voxel_hits`). Rays are
+    clipped to the grid's box and ``[near, far]`` and walked voxel by voxel (exact traversal).
+
+    Args:
+        origins, directions: [R, 3] world rays, unit directions.
+        occupancy: [nx, ny, nz] per-voxel opacity in [0, 1] (float), or uint8 codes of it.
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        near, far: [R] or scalar distance limits (None or non-finite: 0 and inf).
+        transmittance: in (0, 1): the transmittance that counts as the surface.
+    Returns:
+        depth: [R] float64 distance of the crossing, ``inf`` where the ray keeps more than
+            ``transmittance`` through the grid; index: [R, 3] int64 the voxel it lies in, -1 where none.
+    """
+    if not 0.0 < float(transmittance) < 1.0:
+        raise InputError(f"transmittance must lie in (0, 1), got {transmittance}", field="transmittance")
+    occupancy = np.asarray(occupancy)
+    if occupancy.ndim != 3:
+        raise InputError(f"need occupancy [nx, ny, nz], got {occupancy.shape}", field="occupancy")
+    codes = occupancy if occupancy.dtype == QUANTISED_DTYPE else uint8_from_unit(occupancy)
+    return _optical_depth_crossings(
+        origins, directions, codes, _OPTICAL_DEPTH_OF_CODE, origin, voxel_size, near, far, -math.log(float(transmittance))
+    )
+
+
+def _optical_depth_of_codes() -> np.ndarray:
+    """[256] the optical depth of crossing a voxel edge-on at each opacity code, ``-log(1 - q / 255)``
+    (inf for code 255)."""
+    with np.errstate(divide="ignore"):
+        return -np.log1p(-np.arange(QUANTISATION_STEPS + 1) / QUANTISATION_STEPS)
+
+
+_OPTICAL_DEPTH_OF_CODE = _optical_depth_of_codes()
+
+
+def _optical_depth_crossings(
+    origins: Any, directions: Any, codes: np.ndarray, tau_of_code: np.ndarray, origin: Any, voxel_size: float,
+    near: Any, far: Any, threshold: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The common body of :func:`first_voxel_hits` and :func:`transmittance_crossings`: rays
+    through a grid of uint8 ``codes`` whose voxels hold optical depth ``tau_of_code[code]`` per
+    voxel edge (``tau_of_code[0]`` must be 0: those voxels are leapt over), stopping where the
+    accumulated optical depth reaches ``threshold`` > 0."""
     origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    stop = np.asarray(stop, dtype=bool)
-    if stop.ndim != 3 or len(origins) != len(directions):
-        raise InputError(
-            f"need stop [nx, ny, nz] and as many directions as origins, got {stop.shape}, "
-            f"{len(origins)} origins, {len(directions)} directions",
-            field="stop",
-        )
-    n, shape = len(origins), np.asarray(stop.shape)
+    if len(origins) != len(directions):
+        raise InputError(f"{len(origins)} origins but {len(directions)} directions", field="directions")
+    n, shape = len(origins), np.asarray(codes.shape)
     voxel_size = float(voxel_size)
     corner = np.asarray(origin, np.float64) - voxel_size / 2.0
     near, far = _ray_limits(n, near, far)
@@ -364,12 +432,16 @@ def first_voxel_hits(
     t_enter, t_exit = np.maximum(t_enter, near), np.minimum(t_exit, far)
     depth, index = np.full(n, np.inf), np.full((n, 3), -1, dtype=np.int64)
     rays = np.flatnonzero(t_exit > t_enter)
-    if not stop.any() or rays.size == 0:
+    matter = codes > 0
+    if not matter.any() or rays.size == 0:
         return depth, index
-    t = _safe_leaps(origins[rays], directions[rays], t_enter[rays], t_exit[rays], _leap_lengths(stop), corner, voxel_size)
+    t = _safe_leaps(origins[rays], directions[rays], t_enter[rays], t_exit[rays], _leap_lengths(matter), corner, voxel_size)
     walk = t < t_exit[rays]
     rays = rays[walk]
-    hit_depth, hit_index = _walk_voxels(origins[rays], directions[rays], t[walk], t_exit[rays], stop, corner, voxel_size)
+    sigma_of_code = tau_of_code / voxel_size  # density per world unit
+    hit_depth, hit_index = _walk_voxels(
+        origins[rays], directions[rays], t[walk], t_exit[rays], codes, sigma_of_code, corner, voxel_size, threshold
+    )
     depth[rays], index[rays] = hit_depth, hit_index
     return depth, index
 
@@ -404,10 +476,15 @@ def _safe_leaps(o, d, t, t_end, leaps: np.ndarray, corner, voxel_size: float) ->
     return t
 
 
-def _walk_voxels(o, d, t, t_end, stop: np.ndarray, corner, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
-    """Voxel-by-voxel traversal (Amanatides & Woo) of rays from ``t`` to ``t_end``: the depth and
-    index of the first ``stop`` voxel each enters (inf and -1 where none)."""
-    shape = np.asarray(stop.shape)
+def _walk_voxels(
+    o, d, t, t_end, codes: np.ndarray, sigma_of_code: np.ndarray, corner, voxel_size: float, threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel-by-voxel traversal (Amanatides & Woo) of rays from ``t`` to ``t_end``, accumulating
+    optical depth ``sigma * length`` per voxel crossed: the depth where it reaches ``threshold``
+    and the voxel it does so in (inf and -1 where it never does). An infinite density stops a ray
+    where it enters the voxel, even one it only touches; a finite one where the crossing lies
+    inside its segment."""
+    shape = np.asarray(codes.shape)
     depth, index = np.full(len(t), np.inf), np.full((len(t), 3), -1, dtype=np.int64)
     rays = np.arange(len(t))
     ijk = _voxel_of(o, d, t, corner, voxel_size, shape)
@@ -416,19 +493,29 @@ def _walk_voxels(o, d, t, t_end, stop: np.ndarray, corner, voxel_size: float) ->
         # distance at which each axis' next face is crossed, and between faces on that axis
         t_next = np.where(d != 0, (corner + (ijk + (step > 0)) * voxel_size - o) / d, np.inf)
         t_delta = np.where(d != 0, voxel_size / np.abs(d), np.inf)
-    flat, strides = stop.ravel(), np.asarray(stop.strides) // stop.itemsize
+    flat, strides = codes.ravel(), np.asarray(codes.strides) // codes.itemsize
     t, t_end = t.copy(), t_end.copy()
+    tau = np.zeros(len(t))  # optical depth accumulated so far
     while rays.size:
-        hit = flat[ijk @ strides]
-        depth[rays[hit]], index[rays[hit]] = t[hit], ijk[hit]
         rows = np.arange(len(rays))
         axis = t_next.argmin(-1)
-        t = t_next[rows, axis]
+        t_out = np.minimum(t_next[rows, axis], t_end)  # where the ray leaves this voxel
+        sigma = sigma_of_code[flat[ijk @ strides]]  # [A]
+        opaque = np.isinf(sigma)
+        with np.errstate(invalid="ignore"):
+            tau_out = np.where(opaque, np.inf, tau + sigma * (t_out - t))
+            hit = tau_out >= threshold
+            # inside the segment, linear in t: tau + sigma (t_hit - t) = threshold; 0 for opaque voxels
+            depth[rays[hit]] = t[hit] + np.where(opaque[hit], 0.0, (threshold - tau[hit]) / sigma[hit])
+        index[rays[hit]] = ijk[hit]
+        t, tau = t_out, tau_out
         ijk[rows, axis] += step[rows, axis]
         t_next[rows, axis] += t_delta[rows, axis]
         moved = ijk[rows, axis]
         keep = ~hit & (t < t_end) & (moved >= 0) & (moved < shape[axis])
-        rays, t, t_end, ijk, step, t_next, t_delta = (a[keep] for a in (rays, t, t_end, ijk, step, t_next, t_delta))
+        rays, t, t_end, tau, ijk, step, t_next, t_delta = (
+            a[keep] for a in (rays, t, t_end, tau, ijk, step, t_next, t_delta)
+        )
     return depth, index
 
 

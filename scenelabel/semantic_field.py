@@ -415,14 +415,17 @@ class SemanticField:
         return None if record is None else cameras_from_dict(record)
 
     @torch.no_grad()
-    def _first_occupied_t_n(
+    def _surface_t_n(
         self, origins_n: np.ndarray, directions: np.ndarray, near_n: np.ndarray, far_n: np.ndarray
     ) -> np.ndarray:
-        """Distance (normalised units) along each ray to its first occupied sample, ``inf`` if none.
+        """Distance (normalised units) along each ray to where its transmittance through the field
+        falls to 0.5, ``inf`` if it never does: the surface of :meth:`occupancy_map`'s visibility
+        rule, for a ray outside the map.
 
-        Rays march as in rendering (same step, within the box and [near, far]); a sample is
-        occupied when 1 - exp(-σ δ) >= 0.5 with δ = :attr:`occupancy_delta`, what
-        :meth:`query_points` calls occupied.
+        Rays march as in rendering (same step, within the box and [near, far]); density is constant
+        over each sample's interval (NeRF eq. 3), so the crossing is exact for those samples:
+        ``T = exp(-sum σ_i δ_i)``, interpolated linearly in optical depth inside the sample that
+        reaches log 2.
 
         Args:
             origins_n, directions: [R, 3] normalised-frame origins, unit directions.
@@ -430,7 +433,7 @@ class SemanticField:
         Returns:
             [R] float64.
         """
-        sigma_n_occupied = math.log(2.0) / (self.occupancy_delta * self.frame.scale)  # σ per normalised unit
+        goal = math.log(2.0)
         out = np.full(len(origins_n), np.inf)
         todo = np.flatnonzero(far_n > near_n)  # rays with something to march
         chunk = self.config.sampling.chunk_rays
@@ -447,12 +450,18 @@ class SemanticField:
             if spacing == "uniform":
                 n_samples = min(n_samples, math.ceil(longest / self._step_n) + 1)  # no empty tail
             t_starts, t_ends = march(spacing, t_min, t_max, self._step_n, n_samples)  # [r, S]
-            t_mids = (0.5 * (t_starts + t_ends)).double().cpu().numpy()
+            t_starts, t_ends = t_starts.double().cpu().numpy(), t_ends.double().cpu().numpy()
+            t_mids = 0.5 * (t_starts + t_ends)
             points = origins_n[rows, None, :] + t_mids[..., None] * directions[rows, None, :]  # [r, S, 3]
             sigma_n = self._semantics_n(points.reshape(-1, 3))[0].reshape(t_mids.shape)  # [r, S]
-            hit = (sigma_n >= sigma_n_occupied) & (t_ends > t_starts).cpu().numpy()  # [r, S]
-            first = hit.argmax(-1)  # [r]
-            out[rows] = np.where(hit.any(-1), t_mids[np.arange(len(rows)), first], np.inf)
+            tau_after = np.cumsum(sigma_n * np.maximum(t_ends - t_starts, 0.0), axis=-1)  # optical depth after each sample
+            crossed = tau_after >= goal
+            first = crossed.argmax(-1)  # [r]
+            ar = np.arange(len(rows))
+            tau_before = tau_after[ar, first] - sigma_n[ar, first] * np.maximum(t_ends - t_starts, 0.0)[ar, first]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_cross = t_starts[ar, first] + (goal - tau_before) / sigma_n[ar, first]
+            out[rows] = np.where(crossed.any(-1), t_cross, np.inf)
         return out
 
     def occupancy_map(
@@ -468,16 +477,21 @@ class SemanticField:
         ``probs`` are that sub-sample's class probabilities and ``confidence`` their
         1 - entropy / log C (:meth:`evaluate_map_block`).
 
-        UNKNOWN (occupancy, probs and confidence 0): voxels whose centre lies outside the modelled
-        bounds, and with ``visibility`` also every voxel no training camera observed, the map's
-        own occupied voxels being the surfaces (:func:`scenelabel.visibility.observed_voxels`;
-        docs/conventions.md, "Observed space"): an occupied voxel is observed when its centre lies
-        at most one voxel diagonal (√3 · voxel_size) plus one pixel footprint behind the first
-        occupied voxel along a camera's pixel ray, a transparent one only when its centre lies in
-        front of it. When ``bounds`` leave out part of the modelled bounds, the field's surfaces
-        between a camera and the map occlude too (:meth:`map_visibility_inputs`). The map's
-        ``unknown_rule`` says which rule was applied: "visibility", or "bounds" when visibility
-        was off or the checkpoint stores no training cameras.
+        With ``visibility`` (and training cameras in the checkpoint), the training cameras' pixel
+        rays are cast through these opacities to where their transmittance falls to 0.5, the
+        surface a volume renderer draws (:func:`scenelabel.visibility.camera_surfaces`). A voxel
+        such a surface lies in is occupied too, with the class of its most probable ``probs``
+        channel and its occupancy raised to the threshold: a field's walls are often fog a few
+        voxels deep, no voxel of it opaque enough alone. Then every voxel no training camera observed becomes UNKNOWN
+        (:func:`scenelabel.visibility.observed_voxels`; docs/conventions.md, "Observed space"): an
+        occupied voxel is observed when its centre lies at most one voxel diagonal
+        (√3 · voxel_size) plus one pixel footprint behind a camera's surface, a transparent one
+        only when its centre lies in front of it. When ``bounds`` leave out part of the modelled
+        bounds, the field's surfaces between a camera and the map occlude too
+        (:meth:`map_visibility_inputs`). UNKNOWN voxels (occupancy, probs and confidence 0) are
+        also those whose centre lies outside the modelled bounds. The map's ``unknown_rule`` says
+        which rule was applied: "visibility", or "bounds" when visibility was off or the
+        checkpoint stores no training cameras.
 
         The whole map is held in memory; :func:`scenelabel.map_export.write_occupancy_map` writes
         the same map chunk by chunk into a zarr store (on a Dask cluster too).
@@ -498,7 +512,11 @@ class SemanticField:
         inputs = self.map_visibility_inputs(origin, voxel_size, shape) if visibility else None
         if inputs is not None:
             cameras, occluders = inputs
-            unseen = ~observed_voxels(label >= 0, origin, voxel_size, cameras, occluders, chunk)  # [nx, ny, nz]
+            observed, occupied = observed_voxels(occupancy, origin, voxel_size, cameras, occluders, chunk)  # [nx, ny, nz]
+            surface = occupied & (label == FREE)  # a camera's surface in a voxel below the threshold
+            label[surface] = self.class_map.ids_from_channels(probs[surface].argmax(-1))
+            occupancy[surface] = OCCUPIED_THRESHOLD  # so that label >= 0 stays occupancy >= threshold
+            unseen = ~observed & (label != UNKNOWN)
             label[unseen] = UNKNOWN
             occupancy[unseen] = 0.0
             probs[unseen] = 0
@@ -622,8 +640,8 @@ class SemanticField:
     def _occluders_outside(self, cameras: Cameras, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
         """The field's surfaces that a map covering only the box [lo, hi] does not hold.
 
-        Per camera, the distance along each pixel ray to the first point the field holds occupied
-        (:meth:`_first_occupied_t_n`) *before the ray enters the box* (surfaces past the box hide
+        Per camera, the distance along each pixel ray to where its transmittance through the field
+        falls to 0.5 (:meth:`_surface_t_n`) *before the ray enters the box* (surfaces past the box hide
         nothing in it), within the camera's near / far; ``inf`` where there is none.
 
         Args:
@@ -641,6 +659,6 @@ class SemanticField:
         t_enter, t_exit = ray_box_distances(origins, directions, lo, hi)
         far = np.where(t_exit >= np.maximum(t_enter, 0.0), np.minimum(far, t_enter), near)  # a miss: nothing to march
         scale = self.frame.scale
-        depth = self._first_occupied_t_n(self.frame.to_internal(origins), directions, near * scale, far * scale) / scale
+        depth = self._surface_t_n(self.frame.to_internal(origins), directions, near * scale, far * scale) / scale
         parts = np.split(depth, np.cumsum(counts)[:-1])
         return [d.reshape(int(h), int(w)) for d, h, w in zip(parts, cameras.height, cameras.width)]

@@ -19,17 +19,19 @@ The rule (docs/conventions.md, "Observed space"): a point ``p`` is *seen* by cam
 A point seen by no camera is unobserved. ``visible_from_cameras`` applies the rule to many points
 at once (vectorised over points, one pass per camera).
 
-For a map, the first surface is the map's own: :func:`first_occupied_depth` casts each (shrunk,
-:func:`scaled_cameras`) camera's pixel rays through the map's occupied voxels, and
-:func:`observed_voxels` applies the rule twice (docs/conventions.md, "Observed space"): an
-*occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one pixel footprint (a
-surface voxel's centre may lie up to that far behind where the pixel ray first meets the
-surface); a *transparent* voxel only when its centre is in front of the surface, with no margin,
-against :func:`min_depth_over_neighbours` of each depth map (so a voxel just behind a silhouette
-or a surface is never taken for observed free space)::
+For a map, the surfaces are the map's own: :func:`camera_surfaces` casts each (shrunk,
+:func:`scaled_cameras`) camera's pixel rays through the map's per-voxel opacities to where their
+transmittance falls to 0.5 (what a volume renderer draws there); the voxels those surfaces lie in
+are occupied besides the opaque ones (a field's surfaces are often a few voxels of fog, none
+opaque alone), and :func:`observed_voxels` applies the rule twice (docs/conventions.md,
+"Observed space"): an *occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one
+pixel footprint (a surface voxel's centre may lie up to that far behind where the pixel ray
+meets the surface); a *transparent* voxel only when its centre is in front of the surface, with
+no margin, against :func:`min_depth_over_neighbours` of each depth map (so a voxel just behind a
+silhouette or a surface is never taken for observed free space)::
 
     small = scaled_cameras(train_cameras, DEPTH_MAP_WIDTH)
-    observed = observed_voxels(label >= 0, origin, voxel_size, small)   # [nx, ny, nz] bool
+    observed, occupied = observed_voxels(occupancy, origin, voxel_size, small)   # [nx, ny, nz] bool each
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .maps import first_voxel_hits, voxel_centers
+from .maps import DEFAULT_OCCUPANCY_THRESHOLD, transmittance_crossings, uint8_from_unit, voxel_centers
 from .rays import rays_from_cameras
 from .scene import Cameras
 
@@ -54,12 +56,12 @@ __all__ = [
     "cameras_from_dict",
     "camera_surfaces",
     "cameras_to_dict",
-    "first_occupied_depth",
     "min_depth_over_neighbours",
     "observed_centres",
     "observed_voxels",
     "project_points",
     "scaled_cameras",
+    "surface_mask",
     "visible_from_cameras",
 ]
 
@@ -215,61 +217,41 @@ def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
 
 
-def first_occupied_depth(
-    origins: Any,
-    directions: Any,
-    occupied: np.ndarray,
-    origin: Any,
-    voxel_size: float,
-    near: Any = None,
-    far: Any = None,
-) -> np.ndarray:
-    """Distance along each ray to where it enters the first occupied voxel of a grid
-    (:func:`scenelabel.maps.first_voxel_hits`: exact voxel traversal, clipped to the grid's box
-    and ``[near, far]``).
-
-    Args:
-        origins, directions: [R, 3] world rays, unit directions.
-        occupied: [nx, ny, nz] bool.
-        origin: [3] world centre of voxel [0, 0, 0].
-        voxel_size: voxel edge, world units.
-        near, far: [R] or scalar distance limits (None or non-finite: 0 and inf).
-    Returns:
-        [R] float64 distance, ``inf`` where the ray meets no occupied voxel.
-    """
-    return first_voxel_hits(origins, directions, occupied, origin, voxel_size, near, far)[0]
-
-
 @dataclass(frozen=True)
 class CameraSurfaces:
-    """The first surface along every pixel ray of some (small) cameras: what the visibility rule
-    needs besides the voxel centres (:func:`camera_surfaces`; a few small arrays, picklable).
+    """The surface along every pixel ray of some (small) cameras: what the visibility rule needs
+    besides the voxel centres (:func:`camera_surfaces`; a few small arrays, picklable).
 
     Attributes:
         cameras: n cameras (pinholes; distortion is ignored).
-        depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to the first
-            surface, ``inf`` where the ray meets none.
+        depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to its surface,
+            ``inf`` where the ray meets none.
         front: n arrays [h_i, w_i]: :func:`min_depth_over_neighbours` of ``depth``.
+        voxels: [S, 3] int64, the distinct grid voxels those surfaces lie in (surfaces from
+            ``occluder_depth``, outside the grid, are not voxels of it).
     """
 
     cameras: Cameras
     depth: list[np.ndarray]
     front: list[np.ndarray]
+    voxels: np.ndarray
 
 
 def camera_surfaces(
-    occupied: np.ndarray,
+    occupancy: np.ndarray,
     origin: Any,
     voxel_size: float,
     cameras: Cameras,
     occluder_depth: Sequence[np.ndarray] | None = None,
 ) -> CameraSurfaces:
-    """Cast each camera's pixel rays through a grid's occupied voxels (:func:`first_occupied_depth`,
-    within the camera's near / far): the first step of :func:`observed_voxels`, the one that needs
-    the whole grid.
+    """Cast each camera's pixel rays through a grid of per-voxel opacities, within the camera's
+    near / far: each ray's surface is where its transmittance falls to 0.5
+    (:func:`scenelabel.maps.transmittance_crossings`, the median termination depth of volume
+    rendering). The first step of :func:`observed_voxels`, the one that needs the whole grid.
 
     Args:
-        occupied: [nx, ny, nz] bool, the grid's occupied voxels.
+        occupancy: [nx, ny, nz] per-voxel opacity in [0, 1] (a map's ``occupancy``), or its uint8
+            codes; a bool grid is a grid of opaque voxels.
         origin: [3] world centre of voxel [0, 0, 0].
         voxel_size: voxel edge, world units.
         cameras: n cameras (use small ones, :func:`scaled_cameras`).
@@ -278,14 +260,35 @@ def camera_surfaces(
     Returns:
         CameraSurfaces.
     """
-    occupied = np.asarray(occupied, dtype=bool)
-    depth = []
+    occupancy = np.asarray(occupancy)
+    codes = occupancy if occupancy.dtype == np.uint8 else uint8_from_unit(occupancy)  # quantised once
+    depth, voxels = [], []
     for i in range(len(cameras)):
         origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
-        hit = first_occupied_depth(origins, directions, occupied, origin, voxel_size, cameras.near[i], cameras.far[i])
-        hit = hit.reshape(int(cameras.height[i]), int(cameras.width[i]))
-        depth.append(hit if occluder_depth is None else np.minimum(hit, occluder_depth[i]))
-    return CameraSurfaces(cameras, depth, [min_depth_over_neighbours(d) for d in depth])
+        hit, index = transmittance_crossings(origins, directions, codes, origin, voxel_size, cameras.near[i], cameras.far[i])
+        if occluder_depth is not None:
+            outside = np.asarray(occluder_depth[i], np.float64).reshape(-1)
+            occluded = outside < hit  # the pixel's surface lies outside the grid
+            hit, index = np.where(occluded, outside, hit), index[~occluded]
+        voxels.append(index[index[:, 0] >= 0])
+        depth.append(hit.reshape(int(cameras.height[i]), int(cameras.width[i])))
+    voxels = np.unique(np.concatenate(voxels), axis=0) if voxels else np.zeros((0, 3), np.int64)
+    return CameraSurfaces(cameras, depth, [min_depth_over_neighbours(d) for d in depth], voxels.reshape(-1, 3))
+
+
+def surface_mask(surfaces: CameraSurfaces, block: tuple[slice, slice, slice]) -> np.ndarray:
+    """[bi, bj, bk] bool: which voxels of a block of the grid hold a camera surface.
+
+    Args:
+        surfaces: from :func:`camera_surfaces`.
+        block: (slice_i, slice_j, slice_k) with explicit start and stop.
+    """
+    start = np.array([s.start for s in block])
+    stop = np.array([s.stop for s in block])
+    mask = np.zeros(tuple(stop - start), dtype=bool)
+    inside = np.all((surfaces.voxels >= start) & (surfaces.voxels < stop), axis=1)
+    mask[tuple((surfaces.voxels[inside] - start).T)] = True
+    return mask
 
 
 def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: CameraSurfaces) -> np.ndarray:
@@ -316,24 +319,27 @@ def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: C
 
 
 def observed_voxels(
-    occupied: np.ndarray,
+    occupancy: np.ndarray,
     origin: Any,
     voxel_size: float,
     cameras: Cameras,
     occluder_depth: Sequence[np.ndarray] | None = None,
     chunk: int = 32,
-) -> np.ndarray:
-    """Which voxels of a grid the cameras observed, the grid's occupied voxels being the surfaces.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which voxels of a grid are occupied, and which the cameras observed (the rule of a map,
+    docs/conventions.md, "Observed space").
 
-    Each camera's pixel rays (use small cameras, :func:`scaled_cameras`) are cast through the grid
-    (:func:`camera_surfaces`), then every voxel is classified (:func:`observed_centres`): an
-    occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
-    with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
-    sees its centre in front of the nearest surface of its 3x3 pixels
+    Each camera's pixel rays (use small cameras, :func:`scaled_cameras`) are cast through the
+    grid's opacities (:func:`camera_surfaces`). A voxel is occupied when its opacity is at least
+    :data:`scenelabel.maps.DEFAULT_OCCUPANCY_THRESHOLD` (code >= 128) or a camera's surface lies
+    in it; then every voxel is classified (:func:`observed_centres`): an occupied voxel is
+    observed when some camera sees its centre (:func:`visible_from_cameras`) with
+    ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees
+    its centre in front of the nearest surface of its 3x3 pixels
     (:func:`min_depth_over_neighbours`, no margin).
 
     Args:
-        occupied: [nx, ny, nz] bool, the grid's occupied voxels.
+        occupancy: [nx, ny, nz] per-voxel opacity in [0, 1], its uint8 codes, or bool (opaque voxels).
         origin: [3] world centre of voxel [0, 0, 0].
         voxel_size: voxel edge, world units.
         cameras: n cameras (pinholes; distortion is ignored).
@@ -341,14 +347,19 @@ def observed_voxels(
             outside its box); each pixel's surface is the nearer of the two.
         chunk: voxels per block edge (bounds the memory).
     Returns:
-        [nx, ny, nz] bool.
+        observed [nx, ny, nz] bool, occupied [nx, ny, nz] bool.
     """
-    occupied = np.asarray(occupied, dtype=bool)
-    surfaces = camera_surfaces(occupied, origin, voxel_size, cameras, occluder_depth)
-    observed = np.zeros(occupied.shape, dtype=bool)
-    for sl, centres in voxel_centers(origin, voxel_size, occupied.shape, chunk):
+    occupancy = np.asarray(occupancy)
+    if occupancy.ndim != 3:
+        raise InputError(f"need occupancy [nx, ny, nz], got {occupancy.shape}", field="occupancy")
+    codes = occupancy if occupancy.dtype == np.uint8 else uint8_from_unit(occupancy)
+    surfaces = camera_surfaces(codes, origin, voxel_size, cameras, occluder_depth)
+    occupied = codes >= uint8_from_unit(DEFAULT_OCCUPANCY_THRESHOLD)
+    occupied[tuple(surfaces.voxels.T)] = True
+    observed = np.zeros(codes.shape, dtype=bool)
+    for sl, centres in voxel_centers(origin, voxel_size, codes.shape, chunk):
         observed[sl] = observed_centres(centres, occupied[sl], voxel_size, surfaces).reshape(occupied[sl].shape)
-    return observed
+    return observed, occupied
 
 
 def cameras_to_dict(cameras: Cameras) -> dict[str, list]:

@@ -187,14 +187,21 @@ def test_build_stores_training_cameras(field):
     np.testing.assert_allclose(cams.c2w[:, 3], [[0, 0, 0, 1]] * 14)
 
 
-def test_occupancy_map_visibility_only_adds_unknown(field):
+def test_occupancy_map_visibility_only_adds_unknown_and_surfaces(field):
+    """The visibility rule changes a voxel only to UNKNOWN, or a FREE one to the class of its most
+    probable channel where a camera's surface lies in it."""
     vis = field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX)
     plain = field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX, visibility=False)
     assert vis.unknown_rule == "visibility" and plain.unknown_rule == "bounds"
     known = vis.label != UNKNOWN
     assert known.any() and (~known).any() and np.all(plain.label != UNKNOWN)
-    np.testing.assert_array_equal(vis.label[known], plain.label[known])
-    np.testing.assert_array_equal(vis.occupancy[known], plain.occupancy[known])
+    changed = known & (vis.label != plain.label)
+    assert np.all(plain.label[changed] == FREE)
+    np.testing.assert_array_equal(vis.label[changed], field.class_ids[plain.probs[changed].argmax(-1)])
+    np.testing.assert_array_equal(vis.occupancy[changed], 0.5)  # raised to the threshold
+    np.testing.assert_array_equal(vis.label >= 0, vis.occupied)
+    same = known & ~changed
+    np.testing.assert_array_equal(vis.occupancy[same], plain.occupancy[same])
     # probs and confidence: per class id, quantised, 0 where UNKNOWN
     assert vis.probs.shape == vis.shape + (3,) and vis.probs.dtype == np.uint8
     np.testing.assert_array_equal(vis.class_ids, field.class_ids)
@@ -223,10 +230,16 @@ def test_occupancy_map_unknown_outside_the_only_camera(field):
     assert in_frustum.any() and (~in_frustum).any()
     assert np.all(label[~in_frustum] == UNKNOWN)
     assert np.any(label[in_frustum] == FREE)
-    # exactly observed_voxels on the map's own occupied voxels (the map covers all the bounds)
-    expected = observed_voxels(plain.label >= 0, plain.origin, plain.voxel_size, cam)
+    # exactly observed_voxels on the map's own opacities (the map covers all the bounds): the
+    # camera's surfaces are occupied, with their voxel's most probable class
+    expected, occupied = observed_voxels(plain.occupancy, plain.origin, plain.voxel_size, cam)
     np.testing.assert_array_equal(m.label != UNKNOWN, expected)
-    np.testing.assert_array_equal(m.label[expected], plain.label[expected])
+    np.testing.assert_array_equal(m.label >= 0, expected & occupied)
+    same = expected & (plain.label >= 0)
+    np.testing.assert_array_equal(m.label[same], plain.label[same])
+    surface = expected & occupied & (plain.label == FREE)
+    assert surface.any()  # the short-trained field's surfaces are partly fog
+    np.testing.assert_array_equal(m.label[surface], field.class_ids[plain.probs[surface].argmax(-1)])
 
 
 def test_cropped_map_is_occluded_by_surfaces_outside_it(field):
@@ -234,7 +247,7 @@ def test_cropped_map_is_occluded_by_surfaces_outside_it(field):
     crop = np.array([[-1.0, -1.0, -0.15], [1.0, 1.0, -0.05]])
     m = field.occupancy_map(voxel_size=0.05, bounds=crop)
     plain = field.occupancy_map(voxel_size=0.05, bounds=crop, visibility=False)
-    without_floor = observed_voxels(plain.label >= 0, plain.origin, plain.voxel_size, scaled_cameras(field.training_cameras()))
+    without_floor, _ = observed_voxels(plain.occupancy, plain.origin, plain.voxel_size, scaled_cameras(field.training_cameras()))
     assert without_floor.mean() > 0.5  # the map alone has no floor to hide the slab
     assert np.mean(m.label == UNKNOWN) >= 0.9  # the short-trained floor has a few holes
 

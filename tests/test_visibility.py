@@ -9,17 +9,18 @@ import pytest
 
 from scenelabel.errors import InputError
 from scenelabel.io.transforms_json import opengl_to_opencv
-from scenelabel.rays import camera_directions_from_pixels
+from scenelabel.rays import camera_directions_from_pixels, rays_from_cameras
 from scenelabel.scene import Cameras
 from scenelabel.synthetic import look_at
 from scenelabel.visibility import (
+    camera_surfaces,
     cameras_from_dict,
     cameras_to_dict,
-    first_occupied_depth,
     min_depth_over_neighbours,
     observed_voxels,
     project_points,
     scaled_cameras,
+    surface_mask,
     visible_from_cameras,
 )
 
@@ -166,20 +167,35 @@ def wall_grid() -> np.ndarray:
     return occupied
 
 
-def test_first_occupied_depth_hand_built():
-    occupied = wall_grid()
-    origins = np.array([[-1.0, 0.55, 0.55], [-1.0, 0.55, 0.55], [0.3, -1.0, 0.5], [-1.0, 5.0, 0.5], [0.2, 0.5, 0.5]])
-    directions = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [1.0, 0, 0], [1.0, 0, 0]])
-    far = np.array([np.inf, 1.3, np.inf, np.inf, np.inf])
-    depth = first_occupied_depth(origins, directions, occupied, GRID_ORIGIN, GRID_VOXEL, far=far)
-    # the wall's face is at x = 0.5: t = 1.5 from x = -1, 0.3 from x = 0.2; the second ray stops short
-    np.testing.assert_allclose(depth, [1.5, np.inf, np.inf, np.inf, 0.3])
+def test_camera_surfaces_of_opaque_and_foggy_walls():
+    """Axis-aligned rays: an opaque wall's surface is its face; a wall of three fog layers (opacity
+    0.3 each) is crossed at T = 0.5 inside its second layer, log 2 / sigma past its face; beyond
+    far or with no wall there is none."""
+    cams = Cameras.create(cv_look_at((-1.0, 0.5, 0.5), (0.0, 0.5, 0.5)), fx=2.0, fy=2.0, cx=1.0, cy=1.0, width=2, height=2)
+    _, directions = rays_from_cameras(cams, 0)
+    x = directions[:, 0]  # [4] the rays' x components (unit directions)
+    opaque = camera_surfaces(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams)
+    np.testing.assert_allclose(opaque.depth[0].reshape(-1), 1.5 / x)  # the face at x = 0.5
+    assert set(map(tuple, opaque.voxels[:, :1].tolist())) == {(5,)}
+    fog = np.zeros((10, 10, 10))
+    fog[5:8] = 0.3
+    sigma = -math.log1p(-round(0.3 * 255) / 255) / GRID_VOXEL
+    foggy = camera_surfaces(fog, GRID_ORIGIN, GRID_VOXEL, cams)
+    np.testing.assert_allclose(foggy.depth[0].reshape(-1), 1.5 / x + math.log(2) / sigma)
+    assert set(foggy.voxels[:, 0].tolist()) == {6}
+    assert not np.any(fog >= 0.5)  # no voxel of it would be occupied alone
+    short = Cameras.create(cams.c2w, fx=2.0, fy=2.0, cx=1.0, cy=1.0, width=2, height=2, near=0.0, far=1.0)
+    assert np.all(np.isinf(camera_surfaces(fog, GRID_ORIGIN, GRID_VOXEL, short).depth[0]))
+    assert camera_surfaces(np.zeros((10, 10, 10)), GRID_ORIGIN, GRID_VOXEL, cams).voxels.shape == (0, 3)
+    np.testing.assert_array_equal(surface_mask(foggy, (slice(6, 7), slice(0, 10), slice(0, 10))).any(), True)
+    assert not surface_mask(foggy, (slice(0, 6), slice(0, 10), slice(0, 10))).any()
 
 
 def test_observed_voxels_hand_built_wall():
     """A camera in front of a wall sees the space before it and the wall itself, not behind it."""
     cams = Cameras.create(cv_look_at((-1.0, 0.5, 0.5), (0.0, 0.5, 0.5)), fx=16.0, fy=16.0, cx=16.0, cy=16.0, width=32, height=32)
-    observed = observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams)
+    observed, occupied = observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams)
+    np.testing.assert_array_equal(occupied, wall_grid())
     assert observed[:4].all()  # free, in front of the wall
     # the layer touching the wall (centres half a voxel before its face): its outer ring is behind
     # the nearest surface of their 3x3 pixels at these oblique angles
@@ -189,7 +205,20 @@ def test_observed_voxels_hand_built_wall():
     assert not observed[6:].any()  # behind it
     # a surface outside the grid (a depth map of 0.5 everywhere) hides it all but the nearest layers
     near_wall = [np.full((32, 32), 0.5)]
-    assert not observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams, occluder_depth=near_wall)[2:].any()
+    assert not observed_voxels(wall_grid(), GRID_ORIGIN, GRID_VOXEL, cams, occluder_depth=near_wall)[0][2:].any()
+
+
+def test_observed_voxels_foggy_wall_is_a_surface():
+    """Fog that no voxel of which is opaque enough alone: the voxels where the camera's rays reach
+    T = 0.5 are occupied and observed, the fog in front is observed free, the fog behind unknown."""
+    cams = Cameras.create(cv_look_at((-1.0, 0.5, 0.5), (0.0, 0.5, 0.5)), fx=16.0, fy=16.0, cx=16.0, cy=16.0, width=32, height=32)
+    fog = np.zeros((10, 10, 10))
+    fog[5:8] = 0.3
+    observed, occupied = observed_voxels(fog, GRID_ORIGIN, GRID_VOXEL, cams)
+    assert not occupied[:5].any() and not occupied[7:].any()
+    assert occupied[6, 2:8, 2:8].all()  # the rays cross T = 0.5 in the second layer
+    assert observed[:4].all() and observed[6][occupied[6]].all()
+    assert not observed[8:].any()
 
 
 def test_input_errors():
