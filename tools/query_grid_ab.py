@@ -3,7 +3,7 @@
     .venv/bin/python tools/query_grid_ab.py                      # builds the room (fast, 170 s), prints the tables
     .venv/bin/python tools/query_grid_ab.py --build DIR          # an existing build folder of the room instead
 
-One field, four grids, the same points and rays (those of tools/bench.py: 1M uniform points in the
+One field, five grids, the same points and rays (those of tools/bench.py: 1M uniform points in the
 bounds; 100k rays from the middle of the bounds in random directions, depth + label, no colour):
 
 - ``as trained``: the grid saved with the build (rebuilt from the final field, dilated one cell);
@@ -13,9 +13,10 @@ bounds; 100k rays from the middle of the bounds in random directions, depth + la
   faces (space no camera sees) dropped as well: what skipping unobserved space would give (not a
   rule the library has).
 
-Also the share of cells above the grid's threshold inside the room and outside its walls, by how
+Also the share of cells above the grid's threshold in the room and behind its walls, by how
 far above (the density of a cell over the density that makes one marching step alpha_threshold
-opaque). Medians of 3 timings; every number comes from this run.
+opaque). Medians of 3 timings; every number comes from this run. Two rows that are the same grid
+("as trained" and "rebuild, dilate 1") show the machine's timing noise.
 """
 
 from __future__ import annotations
