@@ -95,23 +95,30 @@ def _ray_accuracy(label: np.ndarray, depth: np.ndarray, truth) -> dict:
     }
 
 
+def query_inputs(field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The benchmark's query inputs for a field: QUERY_POINTS uniform points in its bounds [N, 3],
+    and QUERY_RAYS rays from the middle half of the bounds in random directions (origins,
+    directions [M, 3] each); seeded, so every run and script asks the same questions."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(field.aabb[0], field.aabb[1], (QUERY_POINTS, 3))
+    centre, quarter = field.aabb.mean(0), 0.25 * (field.aabb[1] - field.aabb[0])
+    ray_origins = rng.uniform(centre - quarter, centre + quarter, (QUERY_RAYS, 3))
+    ray_dirs = rng.normal(size=(QUERY_RAYS, 3))
+    return pts, ray_origins, ray_dirs
+
+
 def _time_queries(field, boxes) -> dict:
     """query_points, query_rays, occupancy_map and cast_rays timings of a field (medians of
     REPEATS), and the rays' answers against the scene's true boxes."""
     from scenelabel import synthetic
 
-    rng = np.random.default_rng(0)
-    pts = rng.uniform(field.aabb[0], field.aabb[1], (QUERY_POINTS, 3))
+    pts, ray_origins, ray_dirs = query_inputs(field)
     q_times = []
     for _ in range(REPEATS):
         t0 = time.perf_counter()
         field.query_points(pts)
         q_times.append(time.perf_counter() - t0)
-    # rays from inside the bounds in random directions: depth + label, no colour
-    centre, quarter = field.aabb.mean(0), 0.25 * (field.aabb[1] - field.aabb[0])
-    ray_origins = rng.uniform(centre - quarter, centre + quarter, (QUERY_RAYS, 3))
-    ray_dirs = rng.normal(size=(QUERY_RAYS, 3))
-    ray_times = []
+    ray_times = []  # depth + label, no colour
     for _ in range(REPEATS):
         t0 = time.perf_counter()
         field_rays = field.query_rays(ray_origins, ray_dirs, with_rgb=False)

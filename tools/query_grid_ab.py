@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -31,11 +30,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from scenelabel import FREE, SemanticField, build, preset, synthetic, write_furnished_room
+from bench import QUERY_POINTS, QUERY_RAYS, REPEATS, _ray_accuracy, query_inputs  # tools/ is on sys.path when run as a script
+from scenelabel import SemanticField, build, preset, synthetic, write_furnished_room
 
-N_POINTS = 1_000_000
-N_RAYS = 100_000
-REPEATS = 3
 WALL_CELLS = 2
 """Cells within this many cells beyond the walls' inner faces count as the room (they hold the walls' density)."""
 
@@ -99,13 +96,8 @@ def report(field: SemanticField) -> None:
     for q in (1, 3, 10, 30, 100):
         print(f"| {q} | {(ratio[room] > q).mean():.1%} | {(ratio[~room] > q).mean():.1%} |")
 
-    rng = np.random.default_rng(0)  # the points and rays of tools/bench.py
-    points = rng.uniform(field.aabb[0], field.aabb[1], (N_POINTS, 3))
-    centre, quarter = field.aabb.mean(0), 0.25 * (field.aabb[1] - field.aabb[0])
-    origins = rng.uniform(centre - quarter, centre + quarter, (N_RAYS, 3))
-    directions = rng.normal(size=(N_RAYS, 3))
+    points, origins, directions = query_inputs(field)
     truth = synthetic.cast_rays(origins, directions, synthetic.ROOM_BOXES)
-    true_label = np.where(truth.hit, truth.class_id, FREE)
 
     trained = grid.bits.clone()
     density = field.model.density
@@ -127,9 +119,9 @@ def report(field: SemanticField) -> None:
         point_s, pq = _median_seconds(lambda: field.query_points(points))
         ray_s, rq = _median_seconds(lambda: field.query_rays(origins, directions, with_rgb=False))
         answers[name] = (pq, rq)
-        both = truth.hit & (rq.label >= 0)
-        rows.append((name, grid.occupied_fraction, N_POINTS / point_s, N_RAYS / ray_s, np.mean(rq.label == true_label),
-                     float(np.median(np.abs(rq.depth - truth.depth)[both]))))
+        scored = _ray_accuracy(rq.label, rq.depth, truth)
+        rows.append((name, grid.occupied_fraction, QUERY_POINTS / point_s, QUERY_RAYS / ray_s,
+                     scored["label_accuracy"], scored["depth_median_error"]))
     ref_p, ref_r = answers["every cell"]
     print("\n| grid | cells occupied | query_points pts/s | query_rays rays/s | ray labels vs truth | ray depth error "
           "(median) | point labels as every cell | ray labels as every cell | ray depth vs every cell: p99 / max |")
@@ -140,7 +132,6 @@ def report(field: SemanticField) -> None:
         print(f"| {name} | {occ:.1%} | {pts_s:,.0f} | {rays_s:,.0f} | {acc:.2%} | {derr:.3f} | "
               f"{np.mean(pq.label == ref_p.label):.2%} | {np.mean(rq.label == ref_r.label):.2%} | "
               f"{np.quantile(diff, 0.99):.3f} / {diff.max():.3f} |")
-    sys.stdout.flush()
 
 
 if __name__ == "__main__":
