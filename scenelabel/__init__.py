@@ -6,12 +6,14 @@ Public API (numpy in, numpy out)::
     field = SemanticField.load("room/scenelabel")
     q = field.query_points(xyz)                 # density, occupancy, probs, label
     r = field.query_rays(origins, directions)   # rgb, depth, opacity, probs, label
+    baked = BakedField.from_field(field)     # the same questions from a lattice, without the network
     m = field.occupancy_map(voxel_size=0.05)
     m.to_zarr("room.zarr")
     write_occupancy_map("room/scenelabel", "room.zarr", 0.02)   # chunk by chunk (client=: a Dask cluster)
 """
 
 from ._version import __version__
+from .baking import BakedField
 from .batch import SceneOutcome, build_many
 from .config import BuildConfig, DataConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
 from .errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
@@ -28,6 +30,7 @@ from .synthetic import write_furnished_room, write_toy_scene
 __all__ = [
     "__version__",
     "SemanticField",
+    "BakedField",
     "PointQuery",
     "RayQuery",
     "RenderResult",

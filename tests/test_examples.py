@@ -126,13 +126,14 @@ def test_ar_tap_reports_class_and_depth_of_a_training_pixel(toy_build, class_id)
 
 
 @pytest.mark.slow
-def test_query_points_names_the_box_inside_each_box(toy_build):
+@pytest.mark.parametrize("baked", [[], ["--baked"]], ids=["field", "baked"])
+def test_query_points_names_the_box_inside_each_box(toy_build, baked):
     points = []
     for class_id in (3, 7):  # just below the top face, where the surface is
         b = box(class_id)
         points.append(f"{(b.lo[0] + b.hi[0]) / 2},{(b.lo[1] + b.hi[1]) / 2},{b.hi[2] - 0.01}")
     points.append("50,50,50")  # outside the modelled bounds
-    proc = run_example("query_points.py", toy_build.out_dir, *points, "--json")
+    proc = run_example("query_points.py", toy_build.out_dir, *points, "--json", *baked)
     assert proc.returncode == 0, proc.stderr
     rows = json.loads(proc.stdout)
     assert [r["name"] for r in rows] == ["box_red", "box_blue", "UNKNOWN"]
@@ -142,5 +143,5 @@ def test_query_points_names_the_box_inside_each_box(toy_build):
         assert sum(t["prob"] for t in row["top3"]) <= 1 + 1e-9
     assert rows[2]["top3"] == [] and rows[2]["occupancy"] == 0.0
 
-    text = run_example("query_points.py", toy_build.out_dir, points[0])
+    text = run_example("query_points.py", toy_build.out_dir, points[0], *baked)
     assert text.returncode == 0 and "box_red, occupancy" in text.stdout

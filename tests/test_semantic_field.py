@@ -1,7 +1,5 @@
 """SemanticField's public surface on a small trained field: shapes, conventions, input checks."""
 
-import threading
-
 import numpy as np
 import pytest
 import torch
@@ -11,6 +9,7 @@ from scenelabel.errors import CheckpointError
 from scenelabel.maps import confidence_from_probs, unit_from_uint8
 from scenelabel.semantic_field import TRAIN_CAMERAS_KEY
 from scenelabel.visibility import cameras_to_dict, observed_voxels, project_points, scaled_cameras
+from threads import assert_concurrent_calls_match
 
 
 @pytest.fixture(scope="module")
@@ -87,19 +86,7 @@ def test_render_shapes_conventions_and_smoothing(field):
 
 def test_concurrent_queries_match_sequential(field):
     pts = np.random.default_rng(1).uniform(field.aabb[0], field.aabb[1], (4, 2000, 3))
-    expected = [field.query_points(p).density for p in pts]
-    results = [None] * 4
-
-    def work(i):
-        results[i] = field.query_points(pts[i]).density
-
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    for got, want in zip(results, expected):
-        np.testing.assert_array_equal(got, want)
+    assert_concurrent_calls_match(lambda p: field.query_points(p).density, pts)
 
 
 def test_occupancy_map_bounds_and_codes(field):

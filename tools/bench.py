@@ -54,6 +54,8 @@ TARGETS = (
     (None, "query_points >= 2M points/s", "query_points_per_second", lambda r: r["query_points_per_second"] >= 2e6),
     (None, "query_rays (the field) >= 200k rays/s", "query_rays_per_second", lambda r: r["query_rays_per_second"] >= 2e5),
     (None, "cast_rays (the map) >= 200k rays/s", "map_rays_per_second", lambda r: r["map_rays_per_second"] >= 2e5),
+    (None, "query_points (baked at the default voxel) >= 2M points/s", "baked", lambda r: r["baked"][0]["points_per_second"] >= 2e6),
+    (None, "query_rays (baked at the default voxel) >= 200k rays/s", "baked", lambda r: r["baked"][0]["rays_per_second"] >= 2e5),
     ("room", "map with the visibility rule <= 10 s", "map_seconds", lambda r: r["map_seconds"] <= 10),
 )
 
@@ -107,6 +109,50 @@ def query_inputs(field) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pts, ray_origins, ray_dirs
 
 
+BAKE_FRACTIONS = (1.0, 0.5)
+"""Baked queries are measured with lattices at these fractions of the field's default voxel size."""
+
+
+def _time_baked(field, inputs, field_answers, truth) -> list[dict]:
+    """Per BAKE_FRACTIONS: bake time and memory, query_points / query_rays rates (medians of
+    REPEATS) and how the baked answers compare with the field's and with the truth."""
+    from scenelabel import BakedField
+
+    pts, ray_origins, ray_dirs = inputs
+    field_pts, field_rays = field_answers
+    out = []
+    for fraction in BAKE_FRACTIONS:
+        t0 = time.perf_counter()
+        baked = BakedField.from_field(field, fraction * field.default_voxel_size())
+        bake_seconds = time.perf_counter() - t0
+        baked.query_points(pts[:10])  # compiled on first use (cached on disk after): not timed
+        baked.query_rays(ray_origins[:10], ray_dirs[:10])
+        q_times, ray_times = [], []
+        for _ in range(REPEATS):
+            t0 = time.perf_counter()
+            baked_pts = baked.query_points(pts)
+            q_times.append(time.perf_counter() - t0)
+        for _ in range(REPEATS):
+            t0 = time.perf_counter()
+            baked_rays = baked.query_rays(ray_origins, ray_dirs)
+            ray_times.append(time.perf_counter() - t0)
+        depth_gap = np.abs(baked_rays.depth - field_rays.depth)[(baked_rays.label >= 0) & (field_rays.label >= 0)]
+        out.append({
+            "voxel_size": baked.voxel_size,
+            "vertices": int(np.prod(baked.values.shape[:3])),
+            "megabytes": baked.nbytes / 1e6,
+            "bake_seconds": bake_seconds,
+            "points_per_second": QUERY_POINTS / statistics.median(q_times),
+            "rays_per_second": QUERY_RAYS / statistics.median(ray_times),
+            "point_labels_as_field": float(np.mean(baked_pts.label == field_pts.label)),
+            "ray_labels_as_field": float(np.mean(baked_rays.label == field_rays.label)),
+            "ray_depth_vs_field_median": float(np.median(depth_gap)) if depth_gap.size else None,
+            "ray_depth_vs_field_p99": float(np.quantile(depth_gap, 0.99)) if depth_gap.size else None,
+            "rays_truth": _ray_accuracy(baked_rays.label, baked_rays.depth, truth),
+        })
+    return out
+
+
 def _time_queries(field, boxes) -> dict:
     """query_points, query_rays, occupancy_map and cast_rays timings of a field (medians of
     REPEATS), and the rays' answers against the scene's true boxes."""
@@ -116,7 +162,7 @@ def _time_queries(field, boxes) -> dict:
     q_times = []
     for _ in range(REPEATS):
         t0 = time.perf_counter()
-        field.query_points(pts)
+        field_pts = field.query_points(pts)
         q_times.append(time.perf_counter() - t0)
     ray_times = []  # depth + label, no colour
     for _ in range(REPEATS):
@@ -143,6 +189,7 @@ def _time_queries(field, boxes) -> dict:
         "map_rays_per_second": QUERY_RAYS / statistics.median(cast_times),
         "field_rays_truth": _ray_accuracy(field_rays.label, field_rays.depth, truth),
         "map_rays_truth": _ray_accuracy(map_rays.label, map_rays.depth, truth),
+        "baked": _time_baked(field, (pts, ray_origins, ray_dirs), (field_pts, field_rays), truth),
     }
 
 
@@ -226,6 +273,38 @@ def _truth_cells(r: dict) -> str:
     return f"{labels} | {fmt(f['depth_median_error'], '.3f')} / {fmt(m['depth_median_error'], '.3f')}"
 
 
+def _baked_table(rows: list[dict]) -> list[str]:
+    """The baked-queries table (rows that measured queries), or nothing."""
+    measured = [r for r in rows if r.get("baked")]
+    if not measured:
+        return []
+    lines = [
+        "",
+        "Baked queries (`BakedField.from_field(field, voxel_size)`: the field evaluated once on a vertex lattice, "
+        "then queried by trilinear interpolation in compiled loops; same points and rays as above, medians of "
+        f"{REPEATS}). Lattices at {' and '.join(f'{f:g}' for f in BAKE_FRACTIONS)} x the default voxel size. "
+        "\"as the field\": the share of answers equal to the field's own `query_points` / `query_rays` labels, and "
+        "the baked ray depth's distance to the field's where both hit a class (median / p99).",
+        "",
+        "| scene | preset | variant | budget s | bake voxel | vertices | MB | bake s | query_points pts/s | "
+        "query_rays rays/s | point labels as the field | ray labels as the field | ray depth vs the field median / p99 | "
+        "ray labels vs truth | ray depth error vs truth |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in measured:
+        for b in r["baked"]:
+            t = b["rays_truth"]
+            lines.append(
+                f"| {r['scene']} | {r['preset']} | {r['variant']} | {fmt(r.get('time_budget'), '.0f')} | "
+                f"{b['voxel_size']:.3f} | {b['vertices']:,} | {b['megabytes']:.0f} | {b['bake_seconds']:.2f} | "
+                f"{b['points_per_second']:,.0f} | {b['rays_per_second']:,.0f} | {b['point_labels_as_field']:.2%} | "
+                f"{b['ray_labels_as_field']:.2%} | {fmt(b['ray_depth_vs_field_median'], '.3f')} / "
+                f"{fmt(b['ray_depth_vs_field_p99'], '.3f')} | {t['label_accuracy']:.1%} | "
+                f"{fmt(t['depth_median_error'], '.3f')} |"
+            )
+    return lines
+
+
 def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None) -> None:
     lines = [
         "# Benchmarks",
@@ -272,6 +351,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
             f"{fmt(r.get('query_points_per_second'), ',.0f')} | {fmt(r.get('query_rays_per_second'), ',.0f')} | "
             f"{_map_cell(r)} | {fmt(r.get('map_rays_per_second'), ',.0f')} | {_truth_cells(r)} | {r['peak_rss_mb']:.0f} |"
         )
+    lines += _baked_table(rows)
     if plot is not None:
         lines += ["", f"![mIoU and PSNR against build time, one line per preset]({plot.name})"]
     lines += ["", "Which preset to pick (best held-out mIoU among the presets as they are, per scene and budget):", ""]

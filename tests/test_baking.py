@@ -1,0 +1,248 @@
+"""Baked queries: the kernels against naive float64 loops and the renderer's own maths, finite at
+the extremes, and a baked toy field answering as the field does."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from scenelabel import FREE, UNKNOWN, BakedField, InputError, SemanticField
+from scenelabel.baking import MAX_BAKE_BYTES, composite_baked_rays, trilinear
+from scenelabel.rendering import class_probs_from_weights, depth_from_weights, weights_from_density
+from threads import assert_concurrent_calls_match
+
+
+def naive_trilinear(values, corner, spacing, p):
+    """One point, float64: the 8 corners of its cell blended by the tensor-product weights."""
+    shape = np.array(values.shape[:3]) - 1
+    x = (np.asarray(p, np.float64) - corner) / spacing
+    if np.any(x < 0) or np.any(x > shape):
+        return np.zeros(values.shape[3])
+    i = np.minimum(np.floor(x).astype(int), shape - 1)
+    f = x - i
+    out = np.zeros(values.shape[3])
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (f[0] if dx else 1 - f[0]) * (f[1] if dy else 1 - f[1]) * (f[2] if dz else 1 - f[2])
+                out += w * values[i[0] + dx, i[1] + dy, i[2] + dz].astype(np.float64)
+    return out
+
+
+def naive_ray(values, corner, spacing, ray, step, scores, min_trans):
+    """One ray, one sample at a time, float64 Python floats: (depth, opacity, probs)."""
+    o, d, t_lo, t_hi = ray
+    n_classes = values.shape[3] - 1
+    trans, w_sum, wt_sum, acc = 1.0, 0.0, 0.0, np.zeros(n_classes)
+    k, t0 = 0, t_lo
+    while t0 < t_hi and trans >= min_trans:
+        k += 1
+        t1 = min(t_lo + k * step, t_hi)
+        tm = 0.5 * (t0 + t1)
+        v = naive_trilinear(values, corner, spacing, o + tm * d)
+        sigma = max(v[0], 0.0)
+        alpha = 1.0 - math.exp(-sigma * (t1 - t0))
+        w = trans * alpha
+        trans *= 1.0 - alpha
+        w_sum += w
+        wt_sum += w * tm
+        if scores:
+            acc += w * v[1:]
+        else:
+            e = np.exp(v[1:] - v[1:].max())
+            acc += w * e / e.sum()
+        t0 = t1
+    far = max(t_hi, 0.0)
+    if w_sum <= 1e-10:
+        return far, w_sum, np.full(n_classes, 1.0 / n_classes)
+    depth = min(max(wt_sum / w_sum, min(t_lo, far)), far)
+    if scores:
+        e = np.exp(acc - acc.max())
+        return depth, w_sum, e / e.sum()
+    return depth, w_sum, acc / w_sum
+
+
+def random_lattice(rng, shape=(5, 4, 6), n_classes=4):
+    values = np.empty((*shape, 1 + n_classes), np.float32)
+    values[..., 0] = rng.exponential(3.0, shape) * (rng.uniform(size=shape) > 0.4)
+    values[..., 1:] = rng.normal(0, 3, (*shape, n_classes))
+    return values, np.array([-1.0, 0.5, 2.0]), 0.25
+
+
+def random_rays(rng, corner, n=40):
+    o = corner + rng.uniform(-0.2, 1.2, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    t_min = rng.uniform(0, 0.3, n)
+    return o, d, t_min, t_min + rng.uniform(0.0, 1.5, n)
+
+
+def test_trilinear_matches_naive_loop():
+    rng = np.random.default_rng(0)
+    values, corner, spacing = random_lattice(rng)
+    hi = corner + spacing * (np.array(values.shape[:3]) - 1)
+    pts = np.concatenate([
+        rng.uniform(corner - 0.1, hi + 0.1, (300, 3)),  # some outside: 0
+        corner + spacing * np.array([[0, 0, 0], [4, 3, 5], [2, 1, 3]]),  # vertices (and the far corner)
+    ])
+    got = trilinear(values, corner, spacing, pts)
+    want = np.stack([naive_trilinear(values, corner, spacing, p) for p in pts])
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(got[-3:], values[[0, 4, 2], [0, 3, 1], [0, 5, 3]])  # exact at vertices
+
+
+@pytest.mark.parametrize("scores", [False, True])
+@pytest.mark.parametrize("min_trans", [0.0, 1e-4])
+def test_rays_match_naive_loop(scores, min_trans):
+    rng = np.random.default_rng(1)
+    values, corner, spacing = random_lattice(rng)
+    rays = random_rays(rng, corner)
+    depth, opacity, probs = composite_baked_rays(values, corner, spacing, rays, 0.07, scores, min_trans)
+    for r in range(len(depth)):
+        want = naive_ray(values, corner, spacing, tuple(a[r] for a in rays), 0.07, scores, min_trans)
+        assert depth[r] == pytest.approx(want[0], abs=1e-9)
+        assert opacity[r] == pytest.approx(want[1], abs=1e-9)
+        np.testing.assert_allclose(probs[r], want[2], atol=1e-9)
+    np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-12)
+
+
+def test_rays_match_the_renderers_maths():
+    """Same samples through scenelabel.rendering (weights, depth, eq. 7) in float64: the kernel
+    composites as the field's renderer does, up to its early stop."""
+    rng = np.random.default_rng(2)
+    values, corner, spacing = random_lattice(rng)
+    o, d, t_min, t_max = random_rays(rng, corner, n=30)
+    step = 0.05
+    depth, opacity, probs = composite_baked_rays(values, corner, spacing, (o, d, t_min, t_max), step, min_trans=0.0)
+    n_samples = int(np.ceil((t_max - t_min).max() / step)) + 1
+    ends = np.minimum(t_min[:, None] + step * np.arange(1, n_samples + 1), t_max[:, None])
+    starts = np.concatenate([t_min[:, None], ends[:, :-1]], -1)
+    mids = 0.5 * (starts + ends)
+    v = trilinear(values, corner, spacing, (o[:, None] + mids[..., None] * d[:, None]).reshape(-1, 3))
+    v = torch.as_tensor(v.astype(np.float64).reshape(len(o), n_samples, -1))
+    weights, _, _ = weights_from_density(v[..., 0].clamp(min=0), torch.as_tensor(ends - starts))
+    want_depth = depth_from_weights(weights, torch.as_tensor(mids), torch.as_tensor(t_min), torch.as_tensor(t_max))
+    np.testing.assert_allclose(opacity, weights.sum(-1).numpy(), atol=1e-6)
+    np.testing.assert_allclose(depth, want_depth.numpy(), atol=1e-5)
+    np.testing.assert_allclose(probs, class_probs_from_weights(weights, v[..., 1:]).numpy(), atol=1e-5)
+
+
+@pytest.mark.parametrize("sigma", [0.0, 1e-30, 1e-8, 1.0, 1e8, 1e30, 3e38])
+@pytest.mark.parametrize("n_classes", [1, 2, 150])
+def test_rays_finite_at_extremes(sigma, n_classes):
+    shape = (3, 3, 3)
+    values = np.zeros((*shape, 1 + n_classes), np.float32)
+    values[..., 0] = sigma
+    values[..., 1:] = np.linspace(-1e4, 1e4, n_classes, dtype=np.float32)  # huge logits
+    o = np.array([[0.0, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.0, 0.0], [5.0, 5.0, 5.0]])
+    d = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])  # zero components
+    t_min = np.array([0.0, 0.0, 0.0, 0.0])
+    t_max = np.array([1.0, 0.5, 1.0, -1.0])  # the last ray has nothing to march
+    depth, opacity, probs = composite_baked_rays(values, np.zeros(3), 0.5, (o, d, t_min, t_max), 0.1)
+    assert np.all(np.isfinite(depth)) and np.all(np.isfinite(opacity)) and np.all(np.isfinite(probs))
+    assert np.all((opacity >= 0) & (opacity <= 1))
+    np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-9)
+    assert opacity[3] == 0 and depth[3] == 0.0  # empty interval: nothing, depth max(t_max, 0)
+    if sigma >= 1e8:  # opaque at once: all weight in the first sample, depth its middle
+        np.testing.assert_allclose(opacity[:3], 1.0)
+        np.testing.assert_allclose(depth[:3], 0.05)
+        assert np.all(probs[:3].argmax(-1) == n_classes - 1)
+    if sigma <= 1e-30:  # empty: the far end and the uniform law
+        np.testing.assert_allclose(depth[:3], t_max[:3])
+        np.testing.assert_allclose(probs, 1.0 / n_classes)
+
+
+@pytest.mark.parametrize("spacing", [1e-6, 1.0, 1e6])
+def test_points_at_any_scale(spacing):
+    """The same lattice at micrometre to megametre spacing gives the same values at the same
+    relative positions."""
+    rng = np.random.default_rng(3)
+    values, _, _ = random_lattice(rng)
+    corner = np.array([3.0, -2.0, 1.0]) * spacing
+    rel = rng.uniform(0, 1, (50, 3)) * (np.array(values.shape[:3]) - 1)
+    got = trilinear(values, corner, spacing, corner + rel * spacing)
+    want = trilinear(values, np.zeros(3), 1.0, rel)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda v: trilinear(v[..., 0], np.zeros(3), 1.0, np.zeros((1, 3))), "values must be"),
+        (lambda v: trilinear(v, np.zeros(3), 0.0, np.zeros((1, 3))), "spacing"),
+        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((2, 3)),) * 2 + (np.zeros(2), np.ones(3)), 0.1), "rays must"),
+        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((1, 3)),) * 2 + (np.zeros(1), np.ones(1)), -1.0), "step"),
+        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((1, 3)),) * 2 + (np.zeros(1), np.ones(1)), 0.1, min_trans=1.0), "min_trans"),
+    ],
+)
+def test_bad_kernel_inputs(call, match):
+    with pytest.raises(InputError, match=match):
+        call(np.zeros((2, 2, 2, 3), np.float32))
+
+
+# ---- a baked toy field (the session's toy build, tests/conftest.py)
+
+
+@pytest.fixture(scope="module")
+def fields(toy_build):
+    field = SemanticField.load(toy_build.out_dir)
+    return field, BakedField.from_field(field)
+
+
+def test_baked_points_answer_as_the_field(fields):
+    field, baked = fields
+    pts = np.random.default_rng(4).uniform(field.aabb[0] - 0.1, field.aabb[1] + 0.1, (20000, 3))
+    got, want = baked.query_points(pts), field.query_points(pts)
+    np.testing.assert_array_equal(got.class_ids, want.class_ids)
+    assert np.all(got.label[~field._inside(pts)] == UNKNOWN)
+    assert np.mean(got.label == want.label) > 0.97
+    np.testing.assert_allclose(got.probs.sum(-1)[field._inside(pts)], 1.0, atol=1e-9)
+    # at the lattice's vertices the field's own values come back (float32)
+    vertices = baked.corner + baked.voxel_size * np.array([[3, 4, 2], [10, 7, 5], [0, 0, 0]])
+    at = baked.query_points(vertices), field.query_points(vertices)
+    np.testing.assert_allclose(at[0].density, at[1].density, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(at[0].probs, at[1].probs, atol=1e-4)
+
+
+def test_baked_rays_answer_as_the_field(fields):
+    field, baked = fields
+    rng = np.random.default_rng(5)
+    n = 3000
+    centre = 0.5 * (field.aabb[0] + field.aabb[1])
+    origins = centre + rng.uniform(-0.3, 0.3, (n, 3))
+    directions = rng.normal(size=(n, 3))
+    got = baked.query_rays(origins, directions * 7.0)  # length does not matter
+    want = field.query_rays(origins, directions, with_rgb=False)
+    assert np.mean(got.label == want.label) > 0.95
+    hit = (got.label >= 0) & (want.label >= 0)
+    assert np.median(np.abs(got.depth - want.depth)[hit]) < baked.voxel_size
+    np.testing.assert_allclose(got.probs.sum(-1), 1.0, atol=1e-9)
+    # near / far limit the depth; a ray that never enters the bounds is UNKNOWN
+    limited = baked.query_rays(origins[:50], directions[:50], near=0.01, far=0.02)
+    assert np.all((limited.depth >= 0.01 - 1e-12) & (limited.depth <= 0.02 + 1e-12))
+    outside = baked.query_rays(field.aabb[1] + 1.0, np.ones((1, 3)))
+    assert outside.label[0] == UNKNOWN
+    sky = baked.query_rays(centre[None], np.array([[0.0, 0.0, 1.0]]), far=1e-6)
+    assert sky.label[0] == FREE
+
+
+def test_baked_concurrent_queries_match_sequential(fields):
+    _, baked = fields
+    pts = np.random.default_rng(6).uniform(baked.aabb[0], baked.aabb[1], (4, 30000, 3))
+    assert_concurrent_calls_match(lambda p: baked.query_points(p).density, pts)
+    rays = np.random.default_rng(7).normal(size=(4, 20000, 3))
+    assert_concurrent_calls_match(lambda d: baked.query_rays(np.zeros_like(d), d).depth, rays)
+
+
+def test_bake_refuses_what_it_cannot_hold(fields):
+    field, baked = fields
+    with pytest.raises(InputError, match="voxel_size"):
+        BakedField.from_field(field, 0.0)
+    extent = float(np.prod(field.aabb[1] - field.aabb[0]))
+    tiny = (extent * (1 + field.class_map.num_classes) * 4 / MAX_BAKE_BYTES) ** (1 / 3) / 2
+    with pytest.raises(InputError, match="larger voxel size"):
+        BakedField.from_field(field, tiny)
+    assert not baked.values.flags.writeable
+    with pytest.raises(InputError, match="directions"):
+        baked.query_rays(np.zeros((1, 3)), np.zeros((1, 3)))
