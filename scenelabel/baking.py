@@ -32,7 +32,8 @@ from .errors import InputError
 from .maps import FREE, UNKNOWN, ray_box_distances
 from .rendering import OPACITY_EPS
 from .renderer import EARLY_STOP_TRANS
-from .semantic_field import OCCUPIED_THRESHOLD, PointQuery, RayQuery, SemanticField, _as_array
+from .rays import normalize_directions
+from .semantic_field import OCCUPIED_THRESHOLD, PointQuery, RayQuery, SemanticField, _as_array, inside_bounds
 
 __all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES"]
 
@@ -397,9 +398,6 @@ class BakedField:
         """Memory the lattice takes, bytes."""
         return int(self.values.nbytes)
 
-    def _inside(self, xyz: np.ndarray) -> np.ndarray:
-        return np.all((xyz >= self.aabb[0]) & (xyz <= self.aabb[1]), axis=-1)
-
     def query_points(self, xyz) -> PointQuery:
         """What is at these world points: as :meth:`SemanticField.query_points`, from the lattice.
 
@@ -418,7 +416,7 @@ class BakedField:
             _points_kernel(self.values, self.corner, 1.0 / self.voxel_size, xyz[rows], density[rows], probs[rows])
 
         _in_threads(run, n)
-        inside = self._inside(xyz)
+        inside = inside_bounds(xyz, self.aabb)
         density[~inside] = 0.0
         probs[~inside] = 0.0
         occupancy = -np.expm1(-density * self.occupancy_delta)
@@ -443,10 +441,7 @@ class BakedField:
         directions = _as_array(directions, "directions", 3)
         if len(origins) != len(directions):
             raise InputError(f"{len(origins)} origins but {len(directions)} directions", field="directions")
-        norms = np.linalg.norm(directions, axis=-1, keepdims=True)
-        if not np.all(norms > 0):
-            raise InputError("directions must be non-zero", field="directions")
-        directions = directions / norms
+        directions, _ = normalize_directions(directions)
         t_enter, t_exit = ray_box_distances(origins, directions, *self.aabb)
         t_min, t_max = np.maximum(t_enter, 0.0), t_exit
         if near is not None:

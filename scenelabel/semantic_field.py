@@ -100,6 +100,11 @@ def _softmax64(logits: np.ndarray) -> np.ndarray:
     return z / z.sum(-1, keepdims=True)
 
 
+def inside_bounds(xyz: np.ndarray, aabb: np.ndarray) -> np.ndarray:
+    """[N] True where world points [N, 3] lie in the box aabb [2, 3] (faces included)."""
+    return np.all((xyz >= aabb[0]) & (xyz <= aabb[1]), axis=-1)
+
+
 def _as_array(value, name: str, last_dim: int | None) -> np.ndarray:
     """numpy or torch input -> float64 numpy [N, last_dim] (or [N]); checks shape and finiteness."""
     if isinstance(value, torch.Tensor):
@@ -230,7 +235,7 @@ class SemanticField:
         return sigmas_out, logits_out
 
     def _inside(self, xyz: np.ndarray) -> np.ndarray:
-        return np.all((xyz >= self.aabb[0]) & (xyz <= self.aabb[1]), axis=-1)
+        return inside_bounds(xyz, self.aabb)
 
     def query_points(self, xyz) -> PointQuery:
         """What is at these world points.
