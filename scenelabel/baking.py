@@ -1,8 +1,9 @@
 """A trained field baked onto a vertex lattice: point and ray queries without the network.
 
 :meth:`BakedField.from_field` evaluates a :class:`~scenelabel.semantic_field.SemanticField` once
-at the vertices of a lattice over its modelled bounds (density and class logits, the network's
-output as the field's own queries see it: zero where its occupancy grid holds space empty).
+at the vertices of a lattice over its modelled bounds (density and the class values the field
+composites, as its own queries see them: zero density where its occupancy grid holds space
+empty; class probabilities as uint8 codes for an eq. 7 field, float32 logits for an eq. 3 one).
 Queries then interpolate that lattice trilinearly in compiled loops (numba), so they cost a few
 memory reads per point and per ray sample instead of a network evaluation:
 
@@ -20,20 +21,17 @@ lattice. Both are safe to call from several threads at once (nothing is modified
 
 from __future__ import annotations
 
-import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
 import numpy as np
-from numba import njit
 
 from .errors import InputError
-from .maps import FREE, UNKNOWN, ray_box_distances
-from .rendering import OPACITY_EPS
+from .maps import FREE, UNKNOWN, ray_box_distances, uint8_from_unit
 from .renderer import EARLY_STOP_TRANS
 from .rays import normalize_directions
-from .semantic_field import OCCUPIED_THRESHOLD, PointQuery, RayQuery, SemanticField, _as_array, inside_bounds
+from .semantic_field import OCCUPIED_THRESHOLD, PointQuery, RayQuery, SemanticField, _as_array, _softmax64, inside_bounds
 
 __all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES"]
 
@@ -51,162 +49,41 @@ BAKE_CHUNK = 1 << 18
 
 
 # ---------------------------------------------------------------------------------------------
-# compiled kernels (numba): one point or one ray at a time, no allocation inside the loops
+# the maths, on numpy arrays (the loops: scenelabel._lattice_kernels, imported on first use)
 
 
-@njit(cache=True, nogil=True)
-def _lerp_channels(values, x, y, z, c0, c1, out):  # pragma: no cover - compiled
-    """Trilinear interpolation of channels [c0, c1) of ``values`` [nx+1, ny+1, nz+1, F] at lattice
-    coordinates (x, y, z) (in vertex spacings from vertex 0, each in [0, n]) into out[: c1 - c0]."""
-    nx, ny, nz = values.shape[0] - 1, values.shape[1] - 1, values.shape[2] - 1
-    i, j, k = min(int(x), nx - 1), min(int(y), ny - 1), min(int(z), nz - 1)
-    fx, fy, fz = x - i, y - j, z - k
-    gx, gy, gz = 1.0 - fx, 1.0 - fy, 1.0 - fz
-    w000, w001, w010, w011 = gx * gy * gz, gx * gy * fz, gx * fy * gz, gx * fy * fz
-    w100, w101, w110, w111 = fx * gy * gz, fx * gy * fz, fx * fy * gz, fx * fy * fz
-    for c in range(c0, c1):
-        out[c - c0] = (
-            w000 * values[i, j, k, c]
-            + w001 * values[i, j, k + 1, c]
-            + w010 * values[i, j + 1, k, c]
-            + w011 * values[i, j + 1, k + 1, c]
-            + w100 * values[i + 1, j, k, c]
-            + w101 * values[i + 1, j, k + 1, c]
-            + w110 * values[i + 1, j + 1, k, c]
-            + w111 * values[i + 1, j + 1, k + 1, c]
-        )
+def _kernels():
+    from . import _lattice_kernels
+
+    return _lattice_kernels
 
 
-@njit(cache=True, nogil=True)
-def _lattice_coords(values, corner, inv_spacing, px, py, pz, coords):  # pragma: no cover - compiled
-    """World point -> lattice coordinates of ``values``' vertices in coords[:3]; False when it
-    lies outside the lattice (or is NaN)."""
-    coords[0] = (px - corner[0]) * inv_spacing
-    coords[1] = (py - corner[1]) * inv_spacing
-    coords[2] = (pz - corner[2]) * inv_spacing
-    for a in range(3):
-        if not (0.0 <= coords[a] <= values.shape[a] - 1):
-            return False
-    return True
-
-
-@njit(cache=True, nogil=True)
-def _trilinear_kernel(values, corner, inv_spacing, points, out):  # pragma: no cover - compiled
-    coords = np.empty(3)
-    n_channels = values.shape[3]
-    for n in range(points.shape[0]):
-        if _lattice_coords(values, corner, inv_spacing, points[n, 0], points[n, 1], points[n, 2], coords):
-            _lerp_channels(values, coords[0], coords[1], coords[2], 0, n_channels, out[n])
-        else:
-            out[n, :] = 0.0
-
-
-@njit(cache=True, nogil=True)
-def _softmax_into(logits, probs):  # pragma: no cover - compiled
-    """probs = softmax(logits), shifted by the maximum (no overflow), in float64."""
-    top = logits[0]
-    for c in range(1, logits.shape[0]):
-        top = max(top, logits[c])
-    total = 0.0
-    for c in range(logits.shape[0]):
-        probs[c] = math.exp(logits[c] - top)
-        total += probs[c]
-    for c in range(logits.shape[0]):
-        probs[c] /= total
-
-
-@njit(cache=True, nogil=True)
-def _points_kernel(values, corner, inv_spacing, points, density, probs):  # pragma: no cover - compiled
-    """density [N] (channel 0, clamped at 0) and probs [N, C] (softmax of channels 1..C; uniform
-    outside the lattice) at world points [N, 3]."""
-    coords = np.empty(3)
-    n_classes = values.shape[3] - 1
-    logits = np.empty(n_classes)
-    sigma = np.empty(1)
-    for n in range(points.shape[0]):
-        if _lattice_coords(values, corner, inv_spacing, points[n, 0], points[n, 1], points[n, 2], coords):
-            _lerp_channels(values, coords[0], coords[1], coords[2], 0, 1, sigma)
-            _lerp_channels(values, coords[0], coords[1], coords[2], 1, n_classes + 1, logits)
-            density[n] = max(sigma[0], 0.0)
-        else:
-            density[n] = 0.0
-            logits[:] = 0.0
-        _softmax_into(logits, probs[n])
-
-
-@njit(cache=True, nogil=True)
-def _rays_kernel(
-    values, corner, inv_spacing, origins, directions, t_min, t_max, step, min_trans, scores, depth, opacity, probs
-):  # pragma: no cover - compiled
-    """March each ray from t_min to t_max in intervals of ``step`` (the last one cut at t_max),
-    density at the interval middles, and composite (see :func:`composite_baked_rays`)."""
-    coords = np.empty(3)
-    n_classes = values.shape[3] - 1
-    sigma = np.empty(1)
-    logits = np.empty(n_classes)
-    sample = np.empty(n_classes)
-    acc = np.empty(n_classes)
-    for r in range(origins.shape[0]):
-        acc[:] = 0.0
-        trans, w_sum, wt_sum = 1.0, 0.0, 0.0
-        t_lo, t_hi = t_min[r], t_max[r]
-        k = 0
-        t_start = t_lo
-        while t_start < t_hi and trans >= min_trans:
-            k += 1
-            t_end = min(t_lo + k * step, t_hi)
-            t_mid = 0.5 * (t_start + t_end)
-            px = origins[r, 0] + t_mid * directions[r, 0]
-            py = origins[r, 1] + t_mid * directions[r, 1]
-            pz = origins[r, 2] + t_mid * directions[r, 2]
-            if _lattice_coords(values, corner, inv_spacing, px, py, pz, coords):
-                _lerp_channels(values, coords[0], coords[1], coords[2], 0, 1, sigma)
-                if sigma[0] > 0.0:
-                    alpha = -math.expm1(-sigma[0] * (t_end - t_start))
-                    weight = trans * alpha
-                    trans *= 1.0 - alpha
-                    w_sum += weight
-                    wt_sum += weight * t_mid
-                    _lerp_channels(values, coords[0], coords[1], coords[2], 1, n_classes + 1, logits)
-                    if scores:  # eq. 3: composite the scores, softmax after
-                        for c in range(n_classes):
-                            acc[c] += weight * logits[c]
-                    else:  # eq. 7: composite the per-sample probabilities
-                        _softmax_into(logits, sample)
-                        for c in range(n_classes):
-                            acc[c] += weight * sample[c]
-            t_start = t_end
-        far = max(t_hi, 0.0)
-        near = min(t_lo, far)
-        opacity[r] = w_sum
-        if w_sum > OPACITY_EPS:
-            depth[r] = min(max(wt_sum / w_sum, near), far)
-            if scores:
-                _softmax_into(acc, probs[r])
-            else:
-                for c in range(n_classes):
-                    probs[r, c] = acc[c] / w_sum
-        else:  # no weight: the far end and the uniform law, as rendering.depth_from_weights does
-            depth[r] = far
-            probs[r, :] = 1.0 / n_classes
-
-
-# ---------------------------------------------------------------------------------------------
-# the maths, on numpy arrays
-
-
-def _check_lattice(values: np.ndarray, corner: Any, spacing: float, min_channels: int) -> tuple[np.ndarray, np.ndarray, float]:
-    values = np.asarray(values)
-    if values.ndim != 4 or min(values.shape[:3]) < 2 or values.shape[3] < min_channels:
-        raise InputError(
-            f"values must be [nx+1, ny+1, nz+1, F] with at least 2 vertices per axis and {min_channels}+ channels, "
-            f"got {values.shape}",
-            field="values",
-        )
+def _lattice_frame(corner: Any, spacing: float) -> np.ndarray:
+    """(corner x, y, z, 1 / spacing) as the kernels read a lattice's placement."""
     corner = np.asarray(corner, np.float64).reshape(3)
     if not (np.isfinite(spacing) and spacing > 0):
         raise InputError(f"spacing must be a positive number, got {spacing}", field="spacing")
-    return np.ascontiguousarray(values, dtype=np.float32), corner, 1.0 / float(spacing)
+    return np.append(corner, 1.0 / float(spacing))
+
+
+def _vertex_grid(values: Any, name: str, ndim: int, dtypes: tuple = (np.float32,)) -> np.ndarray:
+    """values as a C-contiguous [nx+1, ny+1, nz+1(, F)] array (at least 2 vertices per axis and 1
+    channel), kept in its dtype when it is one of ``dtypes``, else converted to the first."""
+    values = np.asarray(values)
+    if values.ndim != ndim or min(values.shape) < (1 if ndim == 4 else 2) or min(values.shape[:3]) < 2:
+        want = "[nx+1, ny+1, nz+1" + (", F]" if ndim == 4 else "]")
+        raise InputError(f"{name} must be {want} with at least 2 vertices per axis, got {values.shape}", field=name)
+    return np.ascontiguousarray(values, dtype=values.dtype if values.dtype in dtypes else dtypes[0])
+
+
+def _check_lattice(density: Any, class_values: Any) -> tuple[np.ndarray, np.ndarray]:
+    """density float32 [nx+1, ny+1, nz+1] and class values [nx+1, ny+1, nz+1, C] (uint8 kept,
+    anything else float32) on the same vertices."""
+    density = _vertex_grid(density, "density", 3)
+    class_values = _vertex_grid(class_values, "class_values", 4, (np.float32, np.uint8))
+    if class_values.shape[:3] != density.shape:
+        raise InputError(f"class_values {class_values.shape} and density {density.shape} differ in vertices", field="class_values")
+    return density, class_values
 
 
 def _in_threads(run: Callable[[slice], None], n: int) -> None:
@@ -230,53 +107,58 @@ def trilinear(values: np.ndarray, corner: Any, spacing: float, points: Any) -> n
     each cell edge). Points outside the lattice (or NaN) get 0.
 
     Args:
-        values: [nx+1, ny+1, nz+1, F] (read as float32).
+        values: [nx+1, ny+1, nz+1, F] (read as float32, uint8 as it is).
         corner: [3] world position of vertex [0, 0, 0].
         spacing: vertex spacing, world units.
         points: [N, 3] world points.
     Returns:
         [N, F] float32.
     """
-    values, corner, inv = _check_lattice(values, corner, spacing, 1)
+    values = _vertex_grid(values, "values", 4, (np.float32, np.uint8))
+    frame = _lattice_frame(corner, spacing)
     points = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
     out = np.empty((len(points), values.shape[3]), np.float32)
-    _in_threads(lambda rows: _trilinear_kernel(values, corner, inv, points[rows], out[rows]), len(points))
+    kernel = _kernels().trilinear_kernel
+    _in_threads(lambda rows: kernel(values, frame, points[rows], out[rows]), len(points))
     return out
 
 
 def composite_baked_rays(
-    values: np.ndarray,
-    corner: Any,
-    spacing: float,
+    lattice: tuple[np.ndarray, np.ndarray, Any, float],
     rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     step: float,
     scores: bool = False,
     min_trans: float = EARLY_STOP_TRANS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Volume-render rays through a lattice of density (channel 0) and class logits (channels 1..C).
+    """Volume-render rays through a lattice of density and class values (probabilities, or
+    logits with ``scores``).
 
     Each ray is marched from t_min in intervals of ``step`` (the last one cut at t_max, as
     :func:`scenelabel.sampling.march_uniform` without jitter) with the density σ_i read at the
     interval middle t_i (trilinear; negative values count as 0, points outside the lattice as 0),
     and composited as a renderer does (NeRF eq. 3): α_i = 1 - exp(-σ_i δ_i), T_{i+1} = T_i (1 - α_i),
     w_i = T_i α_i. Depth is Σ w_i t_i / Σ w_i clipped to [t_min, t_max]; class probabilities are
-    Σ w_i softmax(l_i) / Σ w_i (eq. 7), or softmax(Σ w_i l_i) with ``scores`` (eq. 3). A ray with
-    Σ w_i ≤ OPACITY_EPS (1e-10, "empty") reports depth max(t_max, 0) and the uniform law. A ray
-    stops once T < ``min_trans`` (the weight it leaves out is at most that; 0: never stop).
+    Σ w_i p_i / Σ w_i (eq. 7, p_i the trilinear probabilities), or softmax(Σ w_i l_i) with
+    ``scores`` (eq. 3, l_i the trilinear logits). A ray with Σ w_i ≤ OPACITY_EPS (1e-10, "empty")
+    reports depth max(t_max, 0) and the uniform law. A ray stops once T < ``min_trans`` (the
+    weight it leaves out is at most that; 0: never stop).
 
     Args:
-        values: [nx+1, ny+1, nz+1, 1 + C] density (per world unit) and logits at the vertices.
-        corner: [3] world position of vertex [0, 0, 0]; spacing: vertex spacing (world units).
+        lattice: (density [nx+1, ny+1, nz+1] per world unit, class_values [nx+1, ny+1, nz+1, C],
+            corner [3] world position of vertex [0, 0, 0], spacing between vertices in world
+            units). Probabilities may carry any scale (uint8 codes q = round(255 p) are read as
+            they are): each sample's trilinear values are normalised to sum to 1.
         rays: (origins [N, 3], directions [N, 3] unit, t_min [N], t_max [N]) world units;
             t_max ≤ t_min for a ray with nothing to march.
         step: marching interval, world units (> 0).
-        scores: composite the logits (eq. 3) instead of the probabilities (eq. 7).
+        scores: the class values are logits, composited before the softmax (eq. 3).
         min_trans: early-stop transmittance in [0, 1).
     Returns:
         depth [N] float64, opacity (Σ w_i) [N] float64, probs [N, C] float64 (rows sum to 1).
     """
-    values, corner, inv = _check_lattice(values, corner, spacing, 2)
-    origins, directions, t_min, t_max = (np.ascontiguousarray(np.asarray(a, np.float64)) for a in rays)
+    density, class_values = _check_lattice(lattice[0], lattice[1])
+    frame = _lattice_frame(lattice[2], lattice[3])
+    origins, directions, t_min, t_max = (np.asarray(a, np.float64) for a in rays)
     n = len(origins)
     if origins.shape != (n, 3) or directions.shape != (n, 3) or t_min.shape != (n,) or t_max.shape != (n,):
         raise InputError(
@@ -288,17 +170,19 @@ def composite_baked_rays(
         raise InputError(f"step must be a positive number, got {step}", field="step")
     if not 0.0 <= min_trans < 1.0:
         raise InputError(f"min_trans must lie in [0, 1), got {min_trans}", field="min_trans")
-    depth, opacity = np.empty(n), np.empty(n)
-    probs = np.empty((n, values.shape[3] - 1))
+    origins, directions = np.ascontiguousarray(origins), np.ascontiguousarray(directions)
+    span = np.stack([t_min, t_max], -1)
+    out, probs = np.empty((n, 2)), np.empty((n, class_values.shape[3]))
+    kernel = _kernels().rays_kernel
 
     def run(rows: slice) -> None:
-        _rays_kernel(
-            values, corner, inv, origins[rows], directions[rows], t_min[rows], t_max[rows], float(step),
-            float(min_trans), bool(scores), depth[rows], opacity[rows], probs[rows],
+        kernel(
+            density, class_values, frame, origins[rows], directions[rows], span[rows], float(step), float(min_trans),
+            bool(scores), out[rows], probs[rows],
         )
 
     _in_threads(run, n)
-    return depth, opacity, probs
+    return out[:, 0], out[:, 1], probs
 
 
 # ---------------------------------------------------------------------------------------------
@@ -312,7 +196,10 @@ class BakedField:
     Safe to query from several threads at once.
 
     Attributes:
-        values: [nx+1, ny+1, nz+1, 1 + C] float32: density per world unit, then class logits.
+        density: [nx+1, ny+1, nz+1] float32, per world unit.
+        class_values: [nx+1, ny+1, nz+1, C]: uint8 class probabilities ``round(255 p)`` (an eq. 7
+            field, which composites probabilities: a code q means q / 255, as in maps), or float32
+            logits (``scores``, an eq. 3 field).
         corner: [3] world position of vertex [0, 0, 0] (the modelled bounds' minimum corner).
         voxel_size: vertex spacing, world units.
         aabb: [2, 3] the modelled bounds (outside them: UNKNOWN, as the field answers).
@@ -320,36 +207,40 @@ class BakedField:
         classes: class id -> name.
         occupancy_delta: δ in occupancy = 1 - exp(-density δ) (the field's).
         step: the field's marching step, world units.
-        scores: True when the field composites class scores (eq. 3), False for eq. 7.
+        scores: True when the field composites class scores (eq. 3), False for probabilities (eq. 7).
     """
 
     def __init__(
         self,
-        values: np.ndarray,
-        corner: np.ndarray,
-        voxel_size: float,
+        lattice: tuple[np.ndarray, np.ndarray, Any, float],
         aabb: np.ndarray,
         classes: dict[int, str],
         rendering: tuple[float, float, bool],
     ):
-        """``rendering``: (occupancy_delta, step, scores), as the attributes."""
-        self.values, self.corner, _ = _check_lattice(values, corner, voxel_size, 2)
-        self.voxel_size = float(voxel_size)
+        """``lattice``: (density, class_values, corner, voxel_size); ``rendering``:
+        (occupancy_delta, step, scores), as the attributes."""
+        self.density, self.class_values = _check_lattice(lattice[0], lattice[1])
+        self.corner = _lattice_frame(lattice[2], lattice[3])[:3]
+        self.voxel_size = float(lattice[3])
         self.aabb = np.asarray(aabb, np.float64)
         self.classes = dict(classes)
         self.class_ids = np.asarray(list(self.classes), dtype=np.int64)
-        if len(self.class_ids) != self.values.shape[3] - 1:
-            raise InputError(f"{len(self.class_ids)} classes for {self.values.shape[3] - 1} logit channels", field="classes")
+        if len(self.class_ids) != self.class_values.shape[3]:
+            raise InputError(f"{len(self.class_ids)} classes for {self.class_values.shape[3]} class channels", field="classes")
         self.occupancy_delta, self.step, self.scores = float(rendering[0]), float(rendering[1]), bool(rendering[2])
-        self.values.setflags(write=False)
+        self.density.setflags(write=False)
+        self.class_values.setflags(write=False)
 
     @classmethod
     def from_field(cls, field: SemanticField, voxel_size: float | None = None) -> "BakedField":
         """Evaluate ``field`` at the vertices of a lattice over its modelled bounds.
 
         The lattice starts at the bounds' minimum corner and has ceil(extent / voxel_size) cells
-        per axis (it covers the bounds). Each vertex holds the density and class logits the
+        per axis (it covers the bounds). Each vertex holds the density and class values the
         field's own queries see there (0 and uniform where its occupancy grid holds space empty).
+        An eq. 7 field's vertices hold class probabilities, the values it composites, as uint8
+        codes: a ray sample then reads C bytes and blends them instead of C floats and a softmax.
+        An eq. 3 field's vertices hold its float32 logits.
 
         Args:
             field: a box-warped field (room and object captures; a forward-facing capture's
@@ -372,8 +263,10 @@ class BakedField:
         lo, hi = field.aabb
         cells = np.maximum(np.ceil((hi - lo) / voxel_size), 1).astype(int)
         cells += lo + cells * voxel_size < hi  # the division rounded down: one more cell covers the bounds
-        n_channels = 1 + field.class_map.num_classes
-        n_bytes = int(np.prod(cells + 1)) * n_channels * 4
+        scores = field.model.config.semantic_rendering == "scores"
+        class_dtype = np.float32 if scores else np.uint8
+        n_classes = field.class_map.num_classes
+        n_bytes = int(np.prod(cells + 1)) * (4 + n_classes * np.dtype(class_dtype).itemsize)
         if n_bytes > MAX_BAKE_BYTES:
             raise InputError(
                 f"a {voxel_size:g} lattice over these bounds needs {n_bytes / 1024**3:.1f} GiB "
@@ -381,22 +274,23 @@ class BakedField:
                 field="voxel_size",
             )
         axes = [lo[a] + voxel_size * np.arange(cells[a] + 1) for a in range(3)]
-        values = np.empty((*(cells + 1), n_channels), np.float32)
+        density = np.empty(tuple(cells + 1), np.float32)
+        class_values = np.empty((*(cells + 1), n_classes), class_dtype)
         slab = max(1, BAKE_CHUNK // ((cells[1] + 1) * (cells[2] + 1)))  # x-slabs per network call
         for i in range(0, cells[0] + 1, slab):
             grid = np.stack(np.meshgrid(axes[0][i : i + slab], axes[1], axes[2], indexing="ij"), -1)
             sigma_n, logits = field._sigma_logits_n(field.frame.to_internal(grid.reshape(-1, 3)))
-            block = values[i : i + slab]
+            block = density[i : i + slab]
             # a density past float32's range stays finite (an inf vertex would make a 0-weight corner NaN)
-            block[..., 0] = np.minimum(sigma_n * field.frame.scale, FLOAT32_MAX).reshape(block.shape[:3])
-            block[..., 1:] = logits.reshape(*block.shape[:3], -1)
-        rendering = (field.occupancy_delta, field._step_n / field.frame.scale, field.model.config.semantic_rendering == "scores")
-        return cls(values, lo, voxel_size, field.aabb, field.classes, rendering)
+            block[:] = np.minimum(sigma_n * field.frame.scale, FLOAT32_MAX).reshape(block.shape)
+            class_values[i : i + slab] = (logits if scores else uint8_from_unit(_softmax64(logits))).reshape(*block.shape, -1)
+        rendering = (field.occupancy_delta, field._step_n / field.frame.scale, scores)
+        return cls((density, class_values, lo, voxel_size), field.aabb, field.classes, rendering)
 
     @property
     def nbytes(self) -> int:
         """Memory the lattice takes, bytes."""
-        return int(self.values.nbytes)
+        return int(self.density.nbytes + self.class_values.nbytes)
 
     def query_points(self, xyz) -> PointQuery:
         """What is at these world points: as :meth:`SemanticField.query_points`, from the lattice.
@@ -405,15 +299,17 @@ class BakedField:
             xyz: (N, 3) world coordinates (numpy or torch).
         Returns:
             PointQuery: density (trilinear, per world unit), occupancy 1 - exp(-density δ), probs
-            [N, C] = softmax of the trilinear logits, label = class id where occupancy ≥ 0.5, FREE
-            where lower, UNKNOWN outside the modelled bounds (density, occupancy, probs 0 there).
+            [N, C] (the trilinear probabilities, normalised; for an eq. 3 field the softmax of
+            the trilinear logits), label = class id where occupancy ≥ 0.5, FREE where lower,
+            UNKNOWN outside the modelled bounds (density, occupancy, probs 0 there).
         """
         xyz = np.ascontiguousarray(_as_array(xyz, "xyz", 3))
         n, n_classes = len(xyz), len(self.class_ids)
         density, probs = np.empty(n), np.empty((n, n_classes))
+        frame, kernel = _lattice_frame(self.corner, self.voxel_size), _kernels().points_kernel
 
         def run(rows: slice) -> None:
-            _points_kernel(self.values, self.corner, 1.0 / self.voxel_size, xyz[rows], density[rows], probs[rows])
+            kernel(self.density, self.class_values, frame, xyz[rows], self.scores, density[rows], probs[rows])
 
         _in_threads(run, n)
         inside = inside_bounds(xyz, self.aabb)
@@ -449,7 +345,8 @@ class BakedField:
         if far is not None:
             t_max = np.minimum(t_max, _as_array(np.broadcast_to(np.asarray(far, np.float64), (len(origins),)), "far", None))
         depth, opacity, probs = composite_baked_rays(
-            self.values, self.corner, self.voxel_size, (origins, directions, t_min, t_max), self.step, self.scores
+            (self.density, self.class_values, self.corner, self.voxel_size), (origins, directions, t_min, t_max),
+            self.step, self.scores,
         )
         hit_label = self.class_ids[probs.argmax(-1)]
         label = np.where(t_max > t_min, np.where(opacity >= OCCUPIED_THRESHOLD, hit_label, FREE), UNKNOWN)

@@ -9,7 +9,9 @@ import torch
 
 from scenelabel import FREE, UNKNOWN, BakedField, InputError, SemanticField
 from scenelabel.baking import MAX_BAKE_BYTES, composite_baked_rays, trilinear
+from scenelabel.maps import uint8_from_unit
 from scenelabel.rendering import class_probs_from_weights, depth_from_weights, weights_from_density
+from scenelabel.semantic_field import _softmax64
 from threads import assert_concurrent_calls_match
 
 
@@ -30,44 +32,39 @@ def naive_trilinear(values, corner, spacing, p):
     return out
 
 
-def naive_ray(values, corner, spacing, ray, step, scores, min_trans):
+def naive_ray(lattice, ray, step, scores, min_trans):
     """One ray, one sample at a time, float64 Python floats: (depth, opacity, probs)."""
+    density, class_values, corner, spacing = lattice
     o, d, t_lo, t_hi = ray
-    n_classes = values.shape[3] - 1
-    trans, w_sum, wt_sum, acc = 1.0, 0.0, 0.0, np.zeros(n_classes)
+    trans, w_sum, wt_sum, acc = 1.0, 0.0, 0.0, np.zeros(class_values.shape[3])
     k, t0 = 0, t_lo
     while t0 < t_hi and trans >= min_trans:
         k += 1
         t1 = min(t_lo + k * step, t_hi)
         tm = 0.5 * (t0 + t1)
-        v = naive_trilinear(values, corner, spacing, o + tm * d)
-        sigma = max(v[0], 0.0)
+        sigma = max(naive_trilinear(density[..., None], corner, spacing, o + tm * d)[0], 0.0)
         alpha = 1.0 - math.exp(-sigma * (t1 - t0))
         w = trans * alpha
         trans *= 1.0 - alpha
         w_sum += w
         wt_sum += w * tm
-        if scores:
-            acc += w * v[1:]
-        else:
-            e = np.exp(v[1:] - v[1:].max())
-            acc += w * e / e.sum()
+        v = naive_trilinear(class_values, corner, spacing, o + tm * d)
+        acc += w * (v if scores else v / max(v.sum(), 1e-300))  # logits (eq. 3) or probabilities (eq. 7)
         t0 = t1
     far = max(t_hi, 0.0)
     if w_sum <= 1e-10:
-        return far, w_sum, np.full(n_classes, 1.0 / n_classes)
+        return far, w_sum, np.full(len(acc), 1.0 / len(acc))
     depth = min(max(wt_sum / w_sum, min(t_lo, far)), far)
-    if scores:
-        e = np.exp(acc - acc.max())
-        return depth, w_sum, e / e.sum()
-    return depth, w_sum, acc / w_sum
+    return depth, w_sum, _softmax64(acc) if scores else acc / w_sum
 
 
-def random_lattice(rng, shape=(5, 4, 6), n_classes=4):
-    values = np.empty((*shape, 1 + n_classes), np.float32)
-    values[..., 0] = rng.exponential(3.0, shape) * (rng.uniform(size=shape) > 0.4)
-    values[..., 1:] = rng.normal(0, 3, (*shape, n_classes))
-    return values, np.array([-1.0, 0.5, 2.0]), 0.25
+def random_lattice(rng, shape=(5, 4, 6), n_classes=4, scores=True):
+    """(density, class values, corner, spacing): density with 40% of the vertices empty; float32
+    logits, or with scores=False their softmax as uint8 codes (what a bake stores)."""
+    density = (rng.exponential(3.0, shape) * (rng.uniform(size=shape) > 0.4)).astype(np.float32)
+    logits = rng.normal(0, 3, (*shape, n_classes))
+    class_values = logits.astype(np.float32) if scores else uint8_from_unit(_softmax64(logits))
+    return density, class_values, np.array([-1.0, 0.5, 2.0]), 0.25
 
 
 def random_rays(rng, corner, n=40):
@@ -78,9 +75,11 @@ def random_rays(rng, corner, n=40):
     return o, d, t_min, t_min + rng.uniform(0.0, 1.5, n)
 
 
-def test_trilinear_matches_naive_loop():
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8])
+def test_trilinear_matches_naive_loop(dtype):
     rng = np.random.default_rng(0)
-    values, corner, spacing = random_lattice(rng)
+    values = rng.uniform(0, 255, (5, 4, 6, 3)).astype(dtype)
+    corner, spacing = np.array([-1.0, 0.5, 2.0]), 0.25
     hi = corner + spacing * (np.array(values.shape[:3]) - 1)
     pts = np.concatenate([
         rng.uniform(corner - 0.1, hi + 0.1, (300, 3)),  # some outside: 0
@@ -88,19 +87,42 @@ def test_trilinear_matches_naive_loop():
     ])
     got = trilinear(values, corner, spacing, pts)
     want = np.stack([naive_trilinear(values, corner, spacing, p) for p in pts])
-    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4)
     np.testing.assert_array_equal(got[-3:], values[[0, 4, 2], [0, 3, 1], [0, 5, 3]])  # exact at vertices
+
+
+@pytest.mark.parametrize("scores", [False, True])
+def test_points_match_naive_loop(scores):
+    """BakedField.query_points: the trilinear class values normalised (uint8 probabilities), or
+    their softmax (logits, an eq. 3 lattice); uniform and UNKNOWN outside the bounds."""
+    rng = np.random.default_rng(8)
+    lattice = random_lattice(rng, scores=scores)
+    density, class_values, corner, spacing = lattice
+    hi = corner + spacing * (np.array(density.shape) - 1)
+    baked = BakedField(lattice, np.stack([corner, hi]), {0: "a", 3: "b", 5: "c", 9: "d"}, (0.1, 0.05, scores))
+    pts = rng.uniform(corner - 0.1, hi + 0.1, (300, 3))
+    got = baked.query_points(pts)
+    for p, sigma, probs, label in zip(pts, got.density, got.probs, got.label):
+        if not np.all((p >= corner) & (p <= hi)):
+            assert label == UNKNOWN and sigma == 0 and np.all(probs == 0)
+            continue
+        v = naive_trilinear(class_values, corner, spacing, p)
+        want = _softmax64(v) if scores else v / v.sum()
+        assert sigma == pytest.approx(max(naive_trilinear(density[..., None], corner, spacing, p)[0], 0.0), rel=1e-6, abs=1e-9)
+        np.testing.assert_allclose(probs, want, atol=1e-9)
+        occupied = 1 - math.exp(-sigma * 0.1) >= 0.5
+        assert label == ([0, 3, 5, 9][int(np.argmax(want))] if occupied else FREE)
 
 
 @pytest.mark.parametrize("scores", [False, True])
 @pytest.mark.parametrize("min_trans", [0.0, 1e-4])
 def test_rays_match_naive_loop(scores, min_trans):
     rng = np.random.default_rng(1)
-    values, corner, spacing = random_lattice(rng)
-    rays = random_rays(rng, corner)
-    depth, opacity, probs = composite_baked_rays(values, corner, spacing, rays, 0.07, scores, min_trans)
+    lattice = random_lattice(rng, scores=scores)
+    rays = random_rays(rng, lattice[2])
+    depth, opacity, probs = composite_baked_rays(lattice, rays, 0.07, scores, min_trans)
     for r in range(len(depth)):
-        want = naive_ray(values, corner, spacing, tuple(a[r] for a in rays), 0.07, scores, min_trans)
+        want = naive_ray(lattice, tuple(a[r] for a in rays), 0.07, scores, min_trans)
         assert depth[r] == pytest.approx(want[0], abs=1e-9)
         assert opacity[r] == pytest.approx(want[1], abs=1e-9)
         np.testing.assert_allclose(probs[r], want[2], atol=1e-9)
@@ -109,37 +131,45 @@ def test_rays_match_naive_loop(scores, min_trans):
 
 def test_rays_match_the_renderers_maths():
     """Same samples through scenelabel.rendering (weights, depth, eq. 7) in float64: the kernel
-    composites as the field's renderer does, up to its early stop."""
+    composites as the field's renderer does, up to its early stop (the renderer's eq. 7 takes
+    logits: the log of the lattice's normalised probabilities)."""
     rng = np.random.default_rng(2)
-    values, corner, spacing = random_lattice(rng)
+    lattice = random_lattice(rng, scores=False)
+    density, class_values, corner, spacing = lattice
     o, d, t_min, t_max = random_rays(rng, corner, n=30)
     step = 0.05
-    depth, opacity, probs = composite_baked_rays(values, corner, spacing, (o, d, t_min, t_max), step, min_trans=0.0)
+    depth, opacity, probs = composite_baked_rays(lattice, (o, d, t_min, t_max), step, min_trans=0.0)
     n_samples = int(np.ceil((t_max - t_min).max() / step)) + 1
     ends = np.minimum(t_min[:, None] + step * np.arange(1, n_samples + 1), t_max[:, None])
     starts = np.concatenate([t_min[:, None], ends[:, :-1]], -1)
     mids = 0.5 * (starts + ends)
-    v = trilinear(values, corner, spacing, (o[:, None] + mids[..., None] * d[:, None]).reshape(-1, 3))
-    v = torch.as_tensor(v.astype(np.float64).reshape(len(o), n_samples, -1))
-    weights, _, _ = weights_from_density(v[..., 0].clamp(min=0), torch.as_tensor(ends - starts))
+    points = (o[:, None] + mids[..., None] * d[:, None]).reshape(-1, 3)
+    sigmas = torch.as_tensor(trilinear(density[..., None], corner, spacing, points).astype(np.float64)).reshape(len(o), -1)
+    p = torch.as_tensor(trilinear(class_values, corner, spacing, points).astype(np.float64)).reshape(len(o), n_samples, -1)
+    logits = (p / p.sum(-1, keepdim=True).clamp(min=1e-300)).clamp(min=1e-300).log()  # outside (no weight): all equal
+    weights, _, _ = weights_from_density(sigmas.clamp(min=0), torch.as_tensor(ends - starts))
     want_depth = depth_from_weights(weights, torch.as_tensor(mids), torch.as_tensor(t_min), torch.as_tensor(t_max))
     np.testing.assert_allclose(opacity, weights.sum(-1).numpy(), atol=1e-6)
     np.testing.assert_allclose(depth, want_depth.numpy(), atol=1e-5)
-    np.testing.assert_allclose(probs, class_probs_from_weights(weights, v[..., 1:]).numpy(), atol=1e-5)
+    np.testing.assert_allclose(probs, class_probs_from_weights(weights, logits).numpy(), atol=1e-5)
 
 
 @pytest.mark.parametrize("sigma", [0.0, 1e-30, 1e-8, 1.0, 1e8, 1e30, 3e38])
 @pytest.mark.parametrize("n_classes", [1, 2, 150])
-def test_rays_finite_at_extremes(sigma, n_classes):
+@pytest.mark.parametrize("scores", [False, True])
+def test_rays_finite_at_extremes(sigma, n_classes, scores):
     shape = (3, 3, 3)
-    values = np.zeros((*shape, 1 + n_classes), np.float32)
-    values[..., 0] = sigma
-    values[..., 1:] = np.linspace(-1e4, 1e4, n_classes, dtype=np.float32)  # huge logits
+    density = np.full(shape, sigma, np.float32)
+    if scores:
+        class_values = np.broadcast_to(np.linspace(-1e4, 1e4, n_classes, dtype=np.float32), (*shape, n_classes))  # huge logits
+    else:
+        class_values = np.zeros((*shape, n_classes), np.uint8)
+        class_values[..., -1] = 255  # certain of the last class, probability exactly 0 for the others
     o = np.array([[0.0, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.0, 0.0], [5.0, 5.0, 5.0]])
     d = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])  # zero components
     t_min = np.array([0.0, 0.0, 0.0, 0.0])
     t_max = np.array([1.0, 0.5, 1.0, -1.0])  # the last ray has nothing to march
-    depth, opacity, probs = composite_baked_rays(values, np.zeros(3), 0.5, (o, d, t_min, t_max), 0.1)
+    depth, opacity, probs = composite_baked_rays((density, class_values, np.zeros(3), 0.5), (o, d, t_min, t_max), 0.1, scores)
     assert np.all(np.isfinite(depth)) and np.all(np.isfinite(opacity)) and np.all(np.isfinite(probs))
     assert np.all((opacity >= 0) & (opacity <= 1))
     np.testing.assert_allclose(probs.sum(-1), 1.0, atol=1e-9)
@@ -158,7 +188,7 @@ def test_points_at_any_scale(spacing):
     """The same lattice at micrometre to megametre spacing gives the same values at the same
     relative positions."""
     rng = np.random.default_rng(3)
-    values, _, _ = random_lattice(rng)
+    values = random_lattice(rng)[1]
     corner = np.array([3.0, -2.0, 1.0]) * spacing
     rel = rng.uniform(0, 1, (50, 3)) * (np.array(values.shape[:3]) - 1)
     got = trilinear(values, corner, spacing, corner + rel * spacing)
@@ -166,14 +196,23 @@ def test_points_at_any_scale(spacing):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
+def _lattice(v):
+    return (v[..., 0], v[..., 1:], np.zeros(3), 1.0)
+
+
+_RAY = (np.zeros((1, 3)),) * 2 + (np.zeros(1), np.ones(1))
+
+
 @pytest.mark.parametrize(
     "call, match",
     [
         (lambda v: trilinear(v[..., 0], np.zeros(3), 1.0, np.zeros((1, 3))), "values must be"),
         (lambda v: trilinear(v, np.zeros(3), 0.0, np.zeros((1, 3))), "spacing"),
-        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((2, 3)),) * 2 + (np.zeros(2), np.ones(3)), 0.1), "rays must"),
-        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((1, 3)),) * 2 + (np.zeros(1), np.ones(1)), -1.0), "step"),
-        (lambda v: composite_baked_rays(v, np.zeros(3), 1.0, (np.zeros((1, 3)),) * 2 + (np.zeros(1), np.ones(1)), 0.1, min_trans=1.0), "min_trans"),
+        (lambda v: composite_baked_rays((v[..., 0], np.zeros((2, 2, 3, 2)), np.zeros(3), 1.0), _RAY, 0.1), "differ in vertices"),
+        (lambda v: composite_baked_rays((v, v, np.zeros(3), 1.0), _RAY, 0.1), "density must be"),
+        (lambda v: composite_baked_rays(_lattice(v), (np.zeros((2, 3)),) * 2 + (np.zeros(2), np.ones(3)), 0.1), "rays must"),
+        (lambda v: composite_baked_rays(_lattice(v), _RAY, -1.0), "step"),
+        (lambda v: composite_baked_rays(_lattice(v), _RAY, 0.1, min_trans=1.0), "min_trans"),
     ],
 )
 def test_bad_kernel_inputs(call, match):
@@ -201,11 +240,11 @@ def test_baked_points_answer_as_the_field(fields):
     agree, agree_fine = np.mean(got.label == want.label), np.mean(got_fine.label == want.label)
     assert agree > 0.9 and agree_fine > 0.97 and agree_fine >= agree  # a finer lattice follows the field closer
     np.testing.assert_allclose(got.probs.sum(-1)[field._inside(pts)], 1.0, atol=1e-9)
-    # at the lattice's vertices the field's own values come back (float32)
+    # at the lattice's vertices the field's own values come back (float32 density, uint8 probabilities)
     vertices = baked.corner + baked.voxel_size * np.array([[3, 4, 2], [10, 7, 5], [0, 0, 0]])
     at = baked.query_points(vertices), field.query_points(vertices)
     np.testing.assert_allclose(at[0].density, at[1].density, rtol=1e-4, atol=1e-4)
-    np.testing.assert_allclose(at[0].probs, at[1].probs, atol=1e-4)
+    np.testing.assert_allclose(at[0].probs, at[1].probs, atol=1 / 255)
 
 
 def test_baked_rays_answer_as_the_field(fields):
@@ -248,6 +287,6 @@ def test_bake_refuses_what_it_cannot_hold(fields):
     tiny = (extent * (1 + field.class_map.num_classes) * 4 / MAX_BAKE_BYTES) ** (1 / 3) / 2
     with pytest.raises(InputError, match="larger voxel size"):
         BakedField.from_field(field, tiny)
-    assert not baked.values.flags.writeable
+    assert not baked.density.flags.writeable and not baked.class_values.flags.writeable
     with pytest.raises(InputError, match="directions"):
         baked.query_rays(np.zeros((1, 3)), np.zeros((1, 3)))

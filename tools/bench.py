@@ -139,7 +139,7 @@ def _time_baked(field, inputs, field_answers, truth) -> list[dict]:
         depth_gap = np.abs(baked_rays.depth - field_rays.depth)[(baked_rays.label >= 0) & (field_rays.label >= 0)]
         out.append({
             "voxel_size": baked.voxel_size,
-            "vertices": int(np.prod(baked.values.shape[:3])),
+            "vertices": int(baked.density.size),
             "megabytes": baked.nbytes / 1e6,
             "bake_seconds": bake_seconds,
             "points_per_second": QUERY_POINTS / statistics.median(q_times),
