@@ -28,10 +28,18 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import InputError
-from .maps import FREE, UNKNOWN, ray_box_distances, uint8_from_unit
+from .maps import ray_box_distances, uint8_from_unit
 from .renderer import EARLY_STOP_TRANS
-from .rays import normalize_directions
-from .semantic_field import OCCUPIED_THRESHOLD, PointQuery, RayQuery, SemanticField, _as_array, _softmax64, inside_bounds
+from .semantic_field import (
+    PointQuery,
+    RayQuery,
+    SemanticField,
+    _as_array,
+    _softmax64,
+    inside_bounds,
+    labels_from_answers,
+    ray_query_inputs,
+)
 
 __all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES"]
 
@@ -70,7 +78,7 @@ def _vertex_grid(values: Any, name: str, ndim: int, dtypes: tuple = (np.float32,
     """values as a C-contiguous [nx+1, ny+1, nz+1(, F)] array (at least 2 vertices per axis and 1
     channel), kept in its dtype when it is one of ``dtypes``, else converted to the first."""
     values = np.asarray(values)
-    if values.ndim != ndim or min(values.shape) < (1 if ndim == 4 else 2) or min(values.shape[:3]) < 2:
+    if values.ndim != ndim or min(values.shape[:3]) < 2 or values.shape[3:] == (0,):
         want = "[nx+1, ny+1, nz+1" + (", F]" if ndim == 4 else "]")
         raise InputError(f"{name} must be {want} with at least 2 vertices per axis, got {values.shape}", field=name)
     return np.ascontiguousarray(values, dtype=values.dtype if values.dtype in dtypes else dtypes[0])
@@ -316,8 +324,7 @@ class BakedField:
         density[~inside] = 0.0
         probs[~inside] = 0.0
         occupancy = -np.expm1(-density * self.occupancy_delta)
-        label = np.where(occupancy >= OCCUPIED_THRESHOLD, self.class_ids[probs.argmax(-1)], FREE)
-        label[~inside] = UNKNOWN
+        label = labels_from_answers(self.class_ids[probs.argmax(-1)], occupancy, inside)
         return PointQuery(density, occupancy, probs, self.class_ids.copy(), label)
 
     def query_rays(self, origins, directions, near=None, far=None) -> RayQuery:
@@ -333,21 +340,16 @@ class BakedField:
             opacity is ≥ 0.5, FREE where the ray crosses the bounds without that, UNKNOWN where
             it never enters them.
         """
-        origins = _as_array(origins, "origins", 3)
-        directions = _as_array(directions, "directions", 3)
-        if len(origins) != len(directions):
-            raise InputError(f"{len(origins)} origins but {len(directions)} directions", field="directions")
-        directions, _ = normalize_directions(directions)
+        origins, directions, near, far = ray_query_inputs(origins, directions, near, far)
         t_enter, t_exit = ray_box_distances(origins, directions, *self.aabb)
         t_min, t_max = np.maximum(t_enter, 0.0), t_exit
         if near is not None:
-            t_min = np.maximum(t_min, _as_array(np.broadcast_to(np.asarray(near, np.float64), (len(origins),)), "near", None))
+            t_min = np.maximum(t_min, near)
         if far is not None:
-            t_max = np.minimum(t_max, _as_array(np.broadcast_to(np.asarray(far, np.float64), (len(origins),)), "far", None))
+            t_max = np.minimum(t_max, far)
         depth, opacity, probs = composite_baked_rays(
             (self.density, self.class_values, self.corner, self.voxel_size), (origins, directions, t_min, t_max),
             self.step, self.scores,
         )
-        hit_label = self.class_ids[probs.argmax(-1)]
-        label = np.where(t_max > t_min, np.where(opacity >= OCCUPIED_THRESHOLD, hit_label, FREE), UNKNOWN)
+        label = labels_from_answers(self.class_ids[probs.argmax(-1)], opacity, t_max > t_min)
         return RayQuery(np.zeros((len(origins), 3)), depth, opacity, probs, self.class_ids.copy(), label)

@@ -105,6 +105,29 @@ def inside_bounds(xyz: np.ndarray, aabb: np.ndarray) -> np.ndarray:
     return np.all((xyz >= aabb[0]) & (xyz <= aabb[1]), axis=-1)
 
 
+def labels_from_answers(hit_label: np.ndarray, opacity: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """The label rule of point and ray queries: the hit class id where ``opacity`` (a point's
+    occupancy, a ray's Σ w) is ≥ OCCUPIED_THRESHOLD, FREE where lower, UNKNOWN where ``seen`` is
+    False (a point outside the bounds, a ray that never enters them). All [N]."""
+    return np.where(seen, np.where(opacity >= OCCUPIED_THRESHOLD, hit_label, FREE), UNKNOWN)
+
+
+def ray_query_inputs(origins, directions, near, far) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """A ray query's inputs checked: origins [N, 3], unit directions [N, 3] (see
+    :func:`scenelabel.rays.normalize_directions`), near / far as [N] float64 or None (scalars
+    broadcast), all world units."""
+    origins = _as_array(origins, "origins", 3)
+    directions = _as_array(directions, "directions", 3)
+    if len(origins) != len(directions):
+        raise InputError(f"{len(origins)} origins but {len(directions)} directions", field="directions")
+    directions, _ = normalize_directions(directions)
+
+    def limit(value, name):
+        return None if value is None else _as_array(np.broadcast_to(np.asarray(value, np.float64), (len(origins),)), name, None)
+
+    return origins, directions, limit(near, "near"), limit(far, "far")
+
+
 def _as_array(value, name: str, last_dim: int | None) -> np.ndarray:
     """numpy or torch input -> float64 numpy [N, last_dim] (or [N]); checks shape and finiteness."""
     if isinstance(value, torch.Tensor):
@@ -256,10 +279,7 @@ class SemanticField:
         occupancy = -np.expm1(-density * self.occupancy_delta)
         all_probs = np.zeros((n, c))
         all_probs[inside] = probs
-        label = np.full(n, UNKNOWN, dtype=np.int64)
-        label[inside] = np.where(
-            occupancy[inside] >= OCCUPIED_THRESHOLD, self.class_map.ids_from_channels(probs.argmax(-1)), FREE
-        )
+        label = labels_from_answers(self.class_map.ids_from_channels(all_probs.argmax(-1)), occupancy, inside)
         return PointQuery(density, occupancy, all_probs, self.class_ids, label)
 
     # ------------------------------------------------------------------ rays
@@ -297,8 +317,7 @@ class SemanticField:
         return {k: np.concatenate(v) if v else np.zeros(0) for k, v in outs.items()}
 
     def _labels_from_rays(self, probs: np.ndarray, opacity: np.ndarray, entered: np.ndarray) -> np.ndarray:
-        hit_label = self.class_map.ids_from_channels(probs.argmax(-1))
-        return np.where(entered, np.where(opacity >= OCCUPIED_THRESHOLD, hit_label, FREE), UNKNOWN)
+        return labels_from_answers(self.class_map.ids_from_channels(probs.argmax(-1)), opacity, entered)
 
     def query_rays(self, origins, directions, near=None, far=None, with_rgb: bool = True) -> RayQuery:
         """What each ray hits, how far, and with which class.
@@ -316,19 +335,10 @@ class SemanticField:
         Returns:
             RayQuery with depth in world units along the unit direction.
         """
-        origins = _as_array(origins, "origins", 3)
-        directions = _as_array(directions, "directions", 3)
-        if len(origins) != len(directions):
-            raise InputError(f"{len(origins)} origins but {len(directions)} directions", field="directions")
-        directions, _ = normalize_directions(directions)
+        origins, directions, near, far = ray_query_inputs(origins, directions, near, far)
         scale = self.frame.scale
-
-        def limit(value, name):
-            if value is None:
-                return None
-            return _as_array(np.broadcast_to(np.asarray(value, np.float64), (len(origins),)), name, None) * scale
-
-        out = self._render_n(self.frame.to_internal(origins), directions, limit(near, "near"), limit(far, "far"), with_rgb)
+        near_n, far_n = (None if v is None else v * scale for v in (near, far))
+        out = self._render_n(self.frame.to_internal(origins), directions, near_n, far_n, with_rgb)
         rgb = out["rgb"] if with_rgb else np.zeros((len(origins), 3))
         return RayQuery(
             rgb=rgb,
