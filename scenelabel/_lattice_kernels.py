@@ -8,11 +8,31 @@ A lattice is read through ``frame`` = (corner x, y, z, 1 / spacing): vertex ``[i
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
 
 import numpy as np
 from numba import njit
 
 from .rendering import OPACITY_EPS
+
+
+MIN_ROWS_PER_THREAD = 4096
+"""Kernels are split over threads (one per core) in chunks of at least this many points or rays."""
+
+
+def in_threads(run: Callable[[slice], None], n: int) -> None:
+    """run(rows) over [0, n) split into one contiguous slice per core (each at least
+    MIN_ROWS_PER_THREAD rows); the kernels release the GIL, so the slices run in parallel."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    workers = max(1, min(cores, n // MIN_ROWS_PER_THREAD))
+    if workers == 1:
+        run(slice(0, n))
+        return
+    bounds = np.linspace(0, n, workers + 1).astype(int)
+    with ThreadPoolExecutor(workers) as pool:
+        list(pool.map(run, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
 
 
 @njit(cache=True, nogil=True)
@@ -91,6 +111,27 @@ def trilinear_kernel(values, frame, points, out):  # pragma: no cover - compiled
             blend_channels(values, ijk, w, out[n])
         else:
             out[n, :] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def scatter_kernel(grad_out, frame, points, grad):  # pragma: no cover - compiled
+    """The adjoint of :func:`trilinear_kernel`: grad [nx, ny, nz, F] += each point's 8 trilinear
+    weights times grad_out [N, F] at its cell's corners (points outside add nothing). Serial:
+    points of one cell write the same vertices."""
+    ijk, w = np.empty(3, np.int64), np.empty(8)
+    for n in range(points.shape[0]):
+        if cell_weights(grad.shape, frame, points[n, 0], points[n, 1], points[n, 2], ijk, w):
+            i, j, k = ijk[0], ijk[1], ijk[2]
+            for c in range(grad.shape[3]):
+                g = grad_out[n, c]
+                grad[i, j, k, c] += w[0] * g
+                grad[i, j, k + 1, c] += w[1] * g
+                grad[i, j + 1, k, c] += w[2] * g
+                grad[i, j + 1, k + 1, c] += w[3] * g
+                grad[i + 1, j, k, c] += w[4] * g
+                grad[i + 1, j, k + 1, c] += w[5] * g
+                grad[i + 1, j + 1, k, c] += w[6] * g
+                grad[i + 1, j + 1, k + 1, c] += w[7] * g
 
 
 @njit(cache=True, nogil=True)

@@ -21,9 +21,7 @@ lattice. Both are safe to call from several threads at once (nothing is modified
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -45,9 +43,6 @@ __all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES"]
 
 MAX_BAKE_BYTES = 2 * 1024**3
 """A bake refuses a lattice whose values would take more memory than this (ask for a larger voxel size)."""
-
-MIN_ROWS_PER_THREAD = 4096
-"""Queries are split over threads (one per core) in chunks of at least this many points or rays."""
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Baked densities are clamped to this (the lattice is float32; the kernels blend in float64)."""
@@ -94,19 +89,6 @@ def _check_lattice(density: Any, class_values: Any) -> tuple[np.ndarray, np.ndar
     return density, class_values
 
 
-def _in_threads(run: Callable[[slice], None], n: int) -> None:
-    """run(rows) over [0, n) split into one contiguous slice per core (each at least
-    MIN_ROWS_PER_THREAD rows); the kernels release the GIL, so the slices run in parallel."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    workers = max(1, min(cores, n // MIN_ROWS_PER_THREAD))
-    if workers == 1:
-        run(slice(0, n))
-        return
-    bounds = np.linspace(0, n, workers + 1).astype(int)
-    with ThreadPoolExecutor(workers) as pool:
-        list(pool.map(run, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
-
-
 def trilinear(values: np.ndarray, corner: Any, spacing: float, points: Any) -> np.ndarray:
     """Trilinear interpolation of a vertex lattice at world points.
 
@@ -127,7 +109,7 @@ def trilinear(values: np.ndarray, corner: Any, spacing: float, points: Any) -> n
     points = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
     out = np.empty((len(points), values.shape[3]), np.float32)
     kernel = _kernels().trilinear_kernel
-    _in_threads(lambda rows: kernel(values, frame, points[rows], out[rows]), len(points))
+    _kernels().in_threads(lambda rows: kernel(values, frame, points[rows], out[rows]), len(points))
     return out
 
 
@@ -189,7 +171,7 @@ def composite_baked_rays(
             bool(scores), out[rows], probs[rows],
         )
 
-    _in_threads(run, n)
+    _kernels().in_threads(run, n)
     return out[:, 0], out[:, 1], probs
 
 
@@ -319,7 +301,7 @@ class BakedField:
         def run(rows: slice) -> None:
             kernel(self.density, self.class_values, frame, xyz[rows], self.scores, density[rows], probs[rows])
 
-        _in_threads(run, n)
+        _kernels().in_threads(run, n)
         inside = inside_bounds(xyz, self.aabb)
         density[~inside] = 0.0
         probs[~inside] = 0.0

@@ -52,8 +52,11 @@ class FieldConfig:
     encoding: str = "triplane"  # triplane | dense | positional (NeRF's frequency encoding)
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
     channels: int = 8  # features per plane / voxel
-    grid_resolution: int = 96  # dense grid side
+    grid_resolution: int = 96  # dense grid: cells along the cube's longest side (the others in proportion: fields.model.dense_grid_shape)
     pe_frequencies: int = 10  # positional encoding of points: frequencies 2^0..2^(n-1)
+    # mlp: networks read the encoding | direct: no network, a dense grid's channels are σ, rgb and
+    # class logits themselves (Plenoxels / DVGO style; view-independent colour)
+    head: str = "mlp"
     hidden: int = 64  # width of the trunk's and heads' hidden layers
     layers: int = 2  # linear layers of the trunk (NeRF: 8)
     skip_layer: int | None = None  # the encoded point is concatenated again before this trunk layer (NeRF: 5)
@@ -68,6 +71,13 @@ class FieldConfig:
     def __post_init__(self) -> None:
         _check_choice("field.encoding", self.encoding, ("triplane", "dense", "positional"))
         _check_choice("field.view_encoding", self.view_encoding, ("sh", "positional"))
+        _check_choice("field.head", self.head, ("mlp", "direct"))
+        if self.head == "direct" and self.encoding != "dense":
+            raise ConfigError(f"field.head 'direct' reads a dense grid's channels: set field.encoding 'dense', not {self.encoding!r}")
+        if self.head == "direct" and self.view_dependent:
+            raise ConfigError("field.head 'direct' stores one colour per vertex: set field.view_dependent false")
+        if not (isinstance(self.grid_resolution, int) and self.grid_resolution >= 2):
+            raise ConfigError(f"field.grid_resolution must be an integer >= 2, got {self.grid_resolution!r}")
         if not (isinstance(self.layers, int) and self.layers >= 2):
             raise ConfigError(f"field.layers must be an integer >= 2, got {self.layers!r}")
         if self.skip_layer is not None and not (isinstance(self.skip_layer, int) and 0 < self.skip_layer < self.layers):
@@ -115,6 +125,9 @@ class TrainConfig:
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
     # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off)
     distortion_weight: float = 0.0
+    # weight of the squared total variation of a dense grid (losses.total_variation), on a random
+    # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
+    tv_weight: float = 0.0
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
@@ -130,9 +143,10 @@ class TrainConfig:
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
-        w = self.distortion_weight
-        if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
-            raise ConfigError(f"train.distortion_weight must be a finite number >= 0, got {w!r}")
+        for name in ("distortion_weight", "tv_weight"):
+            w = getattr(self, name)
+            if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
+                raise ConfigError(f"train.{name} must be a finite number >= 0, got {w!r}")
 
 
 @dataclass
@@ -169,6 +183,18 @@ PRESETS: dict[str, dict] = {
     },
     "dense": {  # a second explicit encoding: one 96^3 x 8 voxel grid instead of tri-planes
         "field": {"encoding": "dense", "grid_resolution": 96, "channels": 8},
+    },
+    # No network: one dense grid whose channels are σ, colour and class logits (head "direct",
+    # Plenoxels / DVGO style), 256 cells along its longest axis; a step costs a few memory reads
+    # per sample, so batches are 4x larger and the grid learns at a higher rate. The grid starts
+    # at σ = 1 (density_bias 0) so that no cell is skipped before it has learnt; 128 marching
+    # steps, about one per grid cell along a ray; a light total-variation prior against floaters.
+    "voxels": {
+        "field": {
+            "encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 256, "density_bias": 0.0,
+        },
+        "sampling": {"n_steps": 128},
+        "train": {"batch_rays": 4096, "lr_encoding": 0.1, "tv_weight": 0.001},
     },
     # The seed paper's MLP family (positional encoding 10 / 4 frequencies). `paper` samples as the
     # original NeRF: a coarse and a fine network, 64 + 128 samples per ray. Its smaller variants

@@ -4,12 +4,54 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights"]
+__all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights", "total_variation",
+           "total_variation_grad"]
 
 
 def photometric_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean squared error over rays and channels. rgb, target: [n_rays, 3] -> scalar."""
     return torch.mean((rgb - target) ** 2)
+
+
+def total_variation(grid: torch.Tensor) -> torch.Tensor:
+    """Squared total variation of a vertex grid, the smoothness prior of explicit radiance
+    fields (Plenoxels, Fridovich-Keil et al. 2022, eq. 4, squared differences as in DVGO):
+    the mean over vertices of Σ_axes (v_next - v)^2, summed over channels.
+
+    Args:
+        grid: [X, Y, Z, C], X, Y, Z >= 2.
+    Returns:
+        scalar.
+    """
+    if grid.ndim != 4 or min(grid.shape[:3]) < 2:
+        raise ValueError(f"total_variation needs a [X, Y, Z, C] grid with >= 2 vertices per axis, got {tuple(grid.shape)}")
+    dx = (grid[1:, :-1, :-1] - grid[:-1, :-1, :-1]).square()
+    dy = (grid[:-1, 1:, :-1] - grid[:-1, :-1, :-1]).square()
+    dz = (grid[:-1, :-1, 1:] - grid[:-1, :-1, :-1]).square()
+    return (dx + dy + dz).sum(-1).mean()
+
+
+def total_variation_grad(grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`total_variation` and its gradient with respect to ``grid``, without autograd (for a
+    slab of a large grid: a step adds it to the slab of the grid's gradient in place).
+
+    Args:
+        grid: [X, Y, Z, C], X, Y, Z >= 2.
+    Returns:
+        (scalar, [X, Y, Z, C]).
+    """
+    with torch.no_grad():
+        value = total_variation(grid)
+        base = grid[:-1, :-1, :-1]
+        scale = 2.0 / (base[..., 0].numel())  # d/dv of mean_v Σ d^2
+        grad = torch.zeros_like(grid)
+        for axis in range(3):
+            step = [slice(None, -1)] * 3
+            step[axis] = slice(1, None)
+            diff = (grid[tuple(step)] - base) * scale
+            grad[tuple(step)] += diff
+            grad[:-1, :-1, :-1] -= diff
+    return value, grad
 
 
 def class_balance_weights(channels: torch.Tensor, num_classes: int) -> torch.Tensor:

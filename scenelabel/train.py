@@ -17,10 +17,10 @@ from tqdm import tqdm
 
 from .config import BuildConfig
 from .distributed import DistContext, all_reduce_mean, broadcast_module_buffers
-from .errors import TrainingError, TrainingInterrupted
+from .errors import ConfigError, TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
-from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
+from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss, total_variation_grad
 from .rays import rays_from_cameras
 from .renderer import RayBundleOutput, ray_intervals, render_rays, render_rays_hierarchical
 from .sampling import OccupancyGrid
@@ -34,6 +34,10 @@ as the mean training colour (the colour variance) has diverged and is stopped.""
 
 MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
+
+TV_SLAB = 16
+"""Vertex rows (first grid axis) of the random slab whose total variation is added each step
+(``train.tv_weight``): a stochastic estimate of the whole grid's mean, at a fraction of the cost."""
 
 GRID_ALL_CELLS_UPDATES = 4
 """The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
@@ -218,6 +222,8 @@ class Trainer:
             if dist.distributed
             else self.generator
         )
+        if tc.tv_weight > 0 and config.field.encoding != "dense":
+            raise ConfigError(f"train.tv_weight regularises a dense grid; field.encoding is {config.field.encoding!r}")
         self.state = TrainState()
         pool_rgb = self.rays.rgb[self.ray_pool]
         self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
@@ -236,6 +242,20 @@ class Trainer:
         if tc.semantic_loss == "focal":
             return semantic_focal_loss(class_log_probs, channels, tc.focal_gamma, self.class_weights)
         return semantic_cross_entropy(class_log_probs, channels, self.class_weights)
+
+    def _add_grid_tv(self) -> float:
+        """Adds train.tv_weight x the total variation of a random TV_SLAB-row slab of the field's
+        dense grid to the grid's gradient (in place: no gradient of the whole grid is made for
+        it); returns the weighted value."""
+        grid = self.model.encoding.grid
+        start = int(torch.randint(max(grid.shape[0] - TV_SLAB, 0) + 1, (1,), generator=self.generator))
+        rows = slice(start, start + TV_SLAB + 1)
+        value, grad = total_variation_grad(grid.detach()[rows])
+        weight = self.config.train.tv_weight
+        if grid.grad is None:
+            grid.grad = torch.zeros_like(grid)
+        grid.grad[rows] += weight * grad
+        return weight * float(value)
 
     def progress(self) -> float:
         """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
@@ -292,6 +312,8 @@ class Trainer:
         self._check_divergence(mse_mean)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        if tc.tv_weight > 0:
+            loss_mean += self._add_grid_tv()
         self.optimizer.step()
         self.state.step += 1
         return {

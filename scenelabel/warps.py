@@ -62,6 +62,10 @@ class BoxWarp(nn.Module):
         """cube coordinates [..., 3] -> points [..., 3]."""
         return (unit + 1.0) * 0.5 * (self.aabb[1] - self.aabb[0]) + self.aabb[0]
 
+    def cube_extent(self) -> tuple[float, float, float]:
+        """How long the cube's x, y, z axes are relative to each other: the box's side lengths."""
+        return tuple((self.aabb[1] - self.aabb[0]).tolist())
+
     def clip(
         self, origins: torch.Tensor, directions: torch.Tensor, t_min: torch.Tensor, t_max: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -119,6 +123,13 @@ class ForwardWarp(nn.Module):
         z = 1.0 / inv_z.clamp(min=1e-12)  # eps: s = 1 with far = inf is the point at infinity
         p = torch.stack([unit[..., 0] * self.tan_xy[0] * z, unit[..., 1] * self.tan_xy[1] * z, z], -1)
         return p @ self.rotation.T + self.centre
+
+    def cube_extent(self) -> tuple[float, float, float]:
+        """How long the cube's u, v, s axes are relative to each other: u and v as the reference
+        view's image sides (tan_x : tan_y), the disparity axis s half the longer of them (views a
+        small baseline apart resolve depth more coarsely than the image plane)."""
+        tan_x, tan_y = self.tan_xy.tolist()
+        return tan_x, tan_y, 0.5 * max(tan_x, tan_y)
 
     def clip(
         self, origins: torch.Tensor, directions: torch.Tensor, t_min: torch.Tensor, t_max: torch.Tensor

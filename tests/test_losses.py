@@ -6,7 +6,16 @@ import torch
 
 import pytest
 
-from scenelabel.losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss
+import numpy as np
+
+from scenelabel.losses import (
+    class_balance_weights,
+    photometric_mse,
+    semantic_cross_entropy,
+    semantic_focal_loss,
+    total_variation,
+    total_variation_grad,
+)
 
 
 def test_cross_entropy_matches_hand_value_and_skips_ignored():
@@ -72,3 +81,40 @@ def test_focal_finite_at_extremes():
     assert float(semantic_focal_loss(log_p.detach()[:1], torch.tensor([0]), 2.0)) == 0.0  # P_t = 1: no loss
     with pytest.raises(ValueError):
         semantic_focal_loss(log_p, torch.tensor([0, 0, 1]), -1.0)
+
+
+def naive_total_variation(grid: np.ndarray) -> float:
+    """float64 loop: mean over vertices with three forward neighbours of Σ_axes Σ_c (next - v)^2."""
+    X, Y, Z, C = grid.shape
+    total, count = 0.0, 0
+    for i in range(X - 1):
+        for j in range(Y - 1):
+            for k in range(Z - 1):
+                v = grid[i, j, k].astype(np.float64)
+                total += sum(float(((grid[n].astype(np.float64) - v) ** 2).sum()) for n in ((i + 1, j, k), (i, j + 1, k), (i, j, k + 1)))
+                count += 1
+    return total / count
+
+
+@pytest.mark.parametrize("shape", [(2, 2, 2, 1), (4, 3, 5, 2)])
+def test_total_variation_matches_a_float64_loop(shape):
+    grid = torch.randn(*shape, generator=torch.Generator().manual_seed(0))
+    assert math.isclose(float(total_variation(grid)), naive_total_variation(grid.numpy()), rel_tol=1e-5)
+
+
+def test_total_variation_is_zero_on_a_constant_grid_and_finite_at_extremes():
+    assert float(total_variation(torch.full((3, 3, 3, 2), 7.0))) == 0.0
+    big = torch.zeros(2, 2, 2, 1)
+    big[1] = 1e18  # (1e18)^2 = 1e36: within float32
+    assert math.isfinite(float(total_variation(big)))
+    with pytest.raises(ValueError, match="X, Y, Z, C"):
+        total_variation(torch.zeros(1, 3, 3, 1))
+
+
+@pytest.mark.parametrize("shape", [(2, 2, 2, 1), (5, 4, 3, 2)])
+def test_total_variation_grad_is_autograds(shape):
+    grid = torch.randn(*shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64, requires_grad=True)
+    total_variation(grid).backward()
+    value, grad = total_variation_grad(grid.detach())
+    torch.testing.assert_close(value, total_variation(grid.detach()))
+    torch.testing.assert_close(grad, grid.grad)

@@ -6,6 +6,8 @@ import torch
 
 from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.config import FieldConfig
+from scenelabel.errors import ConfigError
+from scenelabel.fields.encodings import trilinear_from_grid
 from scenelabel.fields.model import SemanticField3D, SkipMLP, combine_class_densities
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -19,6 +21,9 @@ VARIANTS = [
     {"train": {"detach_semantic_weights": True}},
     {"field": {"encoding": "positional", "view_encoding": "positional", "hidden": 32, "layers": 4, "skip_layer": 2}},
     {"sampling": {"strategy": "hierarchical", "n_coarse": 24, "n_fine": 48}},  # NeRF's coarse + fine networks
+    # no network: the dense grid's channels are σ, colour and logits (the voxels preset, smaller)
+    {"field": {"encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 24}, "train": {"lr_encoding": 0.1}},
+    {"field": {"encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 24, "class_head": "density"}, "train": {"lr_encoding": 0.1}},
 ]
 
 
@@ -26,11 +31,18 @@ def _ids(v):
     return "-".join(f"{k}={val}" for stage in v.values() for k, val in stage.items()) or "default"
 
 
+NETWORKS = {"mlp": {"resolutions": (8,), "hidden": 16}, "direct": {"encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 8}}
+
+
+@pytest.mark.parametrize("network", sorted(NETWORKS))
 @pytest.mark.parametrize("head", ["linear", "density"])
 @pytest.mark.parametrize("n_classes", [1, 2, 255])
-def test_heads_give_probabilities_that_sum_to_one(head, n_classes):
+def test_heads_give_probabilities_that_sum_to_one(head, n_classes, network):
     torch.manual_seed(0)
-    model = SemanticField3D(FieldConfig(resolutions=(8,), hidden=16, class_head=head), n_classes, AABB)
+    model = SemanticField3D(FieldConfig(**NETWORKS[network], class_head=head), n_classes, AABB)
+    if network == "direct":  # a trained grid is not all zeros
+        with torch.no_grad():
+            model.encoding.grid.normal_(0.0, 3.0)
     pts = torch.rand(100, 3) * 2 - 1
     sigmas, rgbs, logits = model(pts, torch.nn.functional.normalize(torch.randn(100, 3), dim=-1))
     assert sigmas.shape == (100,) and rgbs.shape == (100, 3) and logits.shape == (100, n_classes)
@@ -110,3 +122,38 @@ def test_model_family_presets_build_a_field(name):
         assert (config.hidden, config.layers, config.skip_layer) == (256, 8, 5)
         assert model.trunk[0].in_features == 63 and model.trunk[10].in_features == 256 + 63
         assert model.view_encoding.out_dim == 27
+
+
+@pytest.mark.parametrize("class_head", ["linear", "density"])
+def test_direct_head_activates_the_grid_channels(class_head):
+    """head="direct": σ = exp(raw σ + bias) (summed over σ_j for eq. 5), rgb = sigmoid, logits as
+    stored (eq. 6) or the raw σ_j (eq. 5), each from the trilinear channels; no network."""
+    torch.manual_seed(3)
+    config = FieldConfig(encoding="dense", head="direct", view_dependent=False, grid_resolution=6, class_head=class_head)
+    n_classes = 4
+    model = SemanticField3D(config, n_classes, AABB)
+    n_density = n_classes if class_head == "density" else 1
+    n_logits = n_classes if class_head == "linear" else 0
+    assert model.encoding.grid.shape == (7, 7, 7, n_density + 3 + n_logits)
+    assert model.mlp_parameters() == [] and list(model.parameters()) == [model.encoding.grid]
+    with torch.no_grad():
+        model.encoding.grid.normal_(0.0, 2.0)
+    pts = torch.rand(64, 3) * 2 - 1
+    sigmas, rgbs, logits = model(pts, torch.nn.functional.normalize(torch.randn(64, 3), dim=-1))
+    raw = trilinear_from_grid(model.encoding.grid.detach(), model.warp(pts)).double()
+    class_sigmas = torch.exp(raw[:, :n_density] + config.density_bias)
+    torch.testing.assert_close(sigmas.double(), class_sigmas.sum(-1), rtol=1e-5, atol=0)
+    torch.testing.assert_close(rgbs.double(), torch.sigmoid(raw[:, n_density : n_density + 3]), rtol=1e-5, atol=1e-6)
+    expected = raw[:, :n_density] if class_head == "density" else raw[:, n_density + 3 :]
+    torch.testing.assert_close(logits.double(), expected, rtol=1e-5, atol=1e-6)
+
+
+def test_voxels_preset_is_a_direct_dense_grid():
+    config = preset("voxels").field
+    assert (config.encoding, config.head) == ("dense", "direct")
+    with pytest.raises(ConfigError, match="dense"):
+        FieldConfig(encoding="triplane", head="direct")
+    with pytest.raises(ConfigError, match="view_dependent"):
+        FieldConfig(encoding="dense", head="direct")
+    with pytest.raises(ConfigError, match="head"):
+        FieldConfig(head="kan")

@@ -7,6 +7,8 @@ import torch
 
 from scenelabel import SemanticField, TrainingError, build, load_scene, preset, write_toy_scene
 from scenelabel.checkpoint import load_checkpoint
+from scenelabel.errors import ConfigError
+from scenelabel.losses import total_variation
 from scenelabel.pipeline import prepare_training
 
 pytestmark = pytest.mark.slow
@@ -100,3 +102,23 @@ def test_distortion_loss_gathers_the_weights_along_rays(scene):
             assert log["loss"] > log["mse"] + config.train.semantic_weight * log["ce"]  # the term is in the loss
         final[weight] = np.mean([log["distortion"] for log in logs[-20:]])
     assert final[0.05] < final[0.0]
+
+
+def test_total_variation_smooths_a_dense_grid(scene):
+    """train.tv_weight adds the squared total variation of the dense grid (a random slab of it) to
+    the loss: from the same start, the grid ends smoother than without it."""
+    final = {}
+    for weight in (0.0, 1.0):
+        config = preset("voxels", {"field": {"grid_resolution": 24}, "train": {"steps": 60, "tv_weight": weight}})
+        trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+        logs = [trainer.train_step() for _ in range(60)]
+        assert all(np.isfinite(log["loss"]) for log in logs)
+        if weight:
+            assert logs[-1]["loss"] > logs[-1]["mse"] + config.train.semantic_weight * logs[-1]["ce"]
+        final[weight] = float(total_variation(trainer.model.encoding.grid.detach()))
+    assert final[1.0] < 0.5 * final[0.0], final
+
+
+def test_total_variation_needs_a_dense_grid(scene):
+    with pytest.raises(ConfigError, match="dense grid"):
+        prepare_training(load_scene(scene), preset("quick", {"train": {"tv_weight": 0.1}}), torch.device("cpu"))

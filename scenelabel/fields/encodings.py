@@ -1,17 +1,19 @@
 """Spatial encodings: points in the unit box [-1, 1]^3 -> feature vectors.
 
 ``TriPlane`` (the default; measured ≈ 0.45-0.5M points/s fwd+bwd+Adam on 2 CPU cores in
-shared/DESIGN.md) and ``DenseGrid`` are explicit, fast to fit; ``Positional`` is the original NeRF
+shared/DESIGN.md) and ``DenseGrid`` (channels-last, read in compiled loops on the CPU; the
+``voxels`` preset's whole field) are explicit, fast to fit; ``Positional`` is the original NeRF
 frequency encoding, kept for the paper preset.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["TriPlane", "DenseGrid", "Positional", "sh_directions"]
+__all__ = ["TriPlane", "DenseGrid", "trilinear_from_grid", "Positional", "sh_directions"]
 
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))
 """The tri-plane's planes: xy, xz, yz (grid_sample's (x, y) = (first, second) axis)."""
@@ -42,21 +44,76 @@ class TriPlane(nn.Module):
         return torch.cat([f.reshape(f.shape[0] * f.shape[1], n) for f in feats]).T.contiguous()
 
 
-class DenseGrid(nn.Module):
-    """A dense [C, R, R, R] voxel grid sampled trilinearly."""
+class _TrilinearCPU(torch.autograd.Function):
+    """grid [X, Y, Z, C] trilinear at vertex-index coordinates [n, 3] -> [n, C], in compiled loops
+    (scenelabel._lattice_kernels); the backward scatters into a dense gradient of the grid (none
+    for the coordinates)."""
 
-    def __init__(self, resolution: int = 96, channels: int = 8, init_std: float = 0.1):
+    @staticmethod
+    def forward(ctx, grid: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        from .. import _lattice_kernels as kernels
+
+        values, points = grid.detach().contiguous().numpy(), index.detach().contiguous().numpy()
+        out = np.empty((len(points), values.shape[3]), np.float32)
+
+        def run(rows: slice) -> None:
+            kernels.trilinear_kernel(values, _INDEX_FRAME, points[rows], out[rows])
+
+        kernels.in_threads(run, len(points))
+        ctx.save_for_backward(index)
+        ctx.grid_shape = tuple(grid.shape)
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        from .. import _lattice_kernels as kernels
+
+        (index,) = ctx.saved_tensors
+        grad = np.zeros(ctx.grid_shape, np.float32)
+        kernels.scatter_kernel(grad_out.contiguous().numpy(), _INDEX_FRAME, index.numpy(), grad)
+        return torch.from_numpy(grad), None
+
+
+_INDEX_FRAME = np.array([0.0, 0.0, 0.0, 1.0])
+"""The kernels' lattice placement for coordinates already in vertex units (corner 0, spacing 1)."""
+
+
+def trilinear_from_grid(grid: torch.Tensor, unit: torch.Tensor) -> torch.Tensor:
+    """Trilinear interpolation of a vertex grid over the cube [-1, 1]^3.
+
+    Vertex ``[i, j, k]`` of grid [X, Y, Z, C] sits at ``-1 + 2 (i, j, k) / (X - 1, Y - 1, Z - 1)``;
+    points outside the cube read its border (they are clamped onto it, grid_sample's "border").
+    On the CPU compiled loops (forward over the cores, backward serial into a dense gradient of
+    ``grid``; the points get no gradient); elsewhere, or when ``unit`` needs a gradient,
+    :func:`torch.nn.functional.grid_sample`, which gives the same values.
+
+    Args:
+        grid: [X, Y, Z, C], X, Y, Z >= 2.
+        unit: [n, 3] points.
+    Returns:
+        [n, C].
+    """
+    if grid.device.type == "cpu" and grid.dtype == torch.float32 and not unit.requires_grad:
+        top = torch.tensor(grid.shape[:3], dtype=unit.dtype) - 1
+        index = (unit.detach().clamp(-1.0, 1.0) + 1.0) * 0.5 * top
+        return _TrilinearCPU.apply(grid, index)
+    # grid_sample reads [N, C, D, H, W] at (x, y, z) = (W, H, D): the grid as [1, C, Z, Y, X]
+    volume = grid.permute(3, 2, 1, 0)[None]
+    out = F.grid_sample(volume, unit.reshape(1, 1, 1, -1, 3), mode="bilinear", padding_mode="border", align_corners=True)
+    return out.reshape(grid.shape[3], -1).T
+
+
+class DenseGrid(nn.Module):
+    """A dense vertex grid [X, Y, Z, C] over [-1, 1]^3 sampled trilinearly (:func:`trilinear_from_grid`)."""
+
+    def __init__(self, shape: tuple[int, int, int], channels: int = 8, init_std: float = 0.1):
         super().__init__()
-        self.grid = nn.Parameter(init_std * torch.randn(1, channels, resolution, resolution, resolution))
+        self.grid = nn.Parameter(init_std * torch.randn(*shape, channels))
         self.out_dim = channels
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x: [n, 3] in [-1, 1] -> [n, channels]."""
-        # The grid is stored [C, X, Y, Z], i.e. grid_sample's (D, H, W) = (x, y, z); grid_sample's
-        # coordinate triple is (W, H, D), so pass (z, y, x).
-        coords = x[:, [2, 1, 0]].reshape(1, 1, 1, -1, 3)
-        out = F.grid_sample(self.grid, coords, mode="bilinear", padding_mode="border", align_corners=True)
-        return out.reshape(self.grid.shape[1], x.shape[0]).T.contiguous()
+        return trilinear_from_grid(self.grid, x)
 
 
 class Positional(nn.Module):

@@ -6,6 +6,7 @@ that frame, mapped onto the encoding's unit box. σ is per normalised unit of le
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -15,7 +16,7 @@ from ..errors import ConfigError
 from ..warps import BoxWarp
 from .encodings import DenseGrid, Positional, TriPlane, sh_directions
 
-__all__ = ["SemanticField3D", "build_encoding", "trunc_exp", "combine_class_densities"]
+__all__ = ["SemanticField3D", "build_encoding", "dense_grid_shape", "trunc_exp", "combine_class_densities"]
 
 SH_DIM = 9
 TRUNC_EXP_MAX = 15.0
@@ -41,11 +42,24 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
     return _TruncExp.apply(x)
 
 
-def build_encoding(config: FieldConfig) -> nn.Module:
+def dense_grid_shape(warp: nn.Module, resolution: int) -> tuple[int, int, int]:
+    """Vertices of a dense grid per cube axis: ``resolution`` cells along the cube's longest axis
+    and the others in proportion to the warp's :meth:`cube_extent` (at least 1 cell each)."""
+    extent = np.asarray(warp.cube_extent(), dtype=np.float64)
+    cells = np.maximum(np.rint(resolution * extent / extent.max()), 1).astype(int)
+    return tuple(int(c) + 1 for c in cells)
+
+
+def build_encoding(config: FieldConfig, warp: nn.Module, channels: int | None = None) -> nn.Module:
+    """The encoding ``config`` names; a dense grid is shaped by the warp (:func:`dense_grid_shape`)
+    and has ``channels`` (default ``config.channels``)."""
     if config.encoding == "triplane":
         return TriPlane(config.resolutions, config.channels)
     if config.encoding == "dense":
-        return DenseGrid(config.grid_resolution, config.channels)
+        shape = dense_grid_shape(warp, config.grid_resolution)
+        if channels is None:
+            return DenseGrid(shape, config.channels)
+        return DenseGrid(shape, channels, init_std=0.0)
     if config.encoding == "positional":
         return Positional(config.pe_frequencies)
     raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane', 'dense' or 'positional'")
@@ -98,6 +112,11 @@ class SemanticField3D(nn.Module):
 
     Colour: (h, SH(d) or γ(d)) -> hidden -> rgb in both. The trunk is ``layers`` deep, with
     NeRF's skip connection when ``skip_layer`` is set (:class:`SkipMLP`).
+
+    ``head="direct"`` has no network: a dense grid's channels are the raw densities (1, or C with
+    ``class_head="density"``), the colour before its sigmoid (3, view-independent) and, with
+    ``class_head="linear"``, the class logits (C), each interpolated trilinearly and activated
+    after (Plenoxels, Fridovich-Keil et al. 2022; DVGO's post-activation, Sun et al. 2022).
     """
 
     def __init__(self, config: FieldConfig, num_classes: int, aabb: torch.Tensor, warp: nn.Module | None = None):
@@ -106,9 +125,14 @@ class SemanticField3D(nn.Module):
         self.num_classes = num_classes
         self.register_buffer("aabb", aabb.clone().float())
         self.warp = BoxWarp(aabb) if warp is None else warp  # normalised frame -> the encoding's [-1, 1]^3
-        self.encoding = build_encoding(config)
-        h = config.hidden
         self._n_density = num_classes if config.class_head == "density" else 1
+        self.direct = config.head == "direct"
+        if self.direct:
+            n_logits = num_classes if config.class_head == "linear" else 0
+            self.encoding = build_encoding(config, self.warp, self._n_density + 3 + n_logits)
+            return
+        self.encoding = build_encoding(config, self.warp)
+        h = config.hidden
         self.trunk = SkipMLP(self.encoding.out_dim, h, h + self._n_density, config.layers, config.skip_layer)
         self.view_encoding = Positional(config.pe_view_frequencies) if config.view_encoding == "positional" else None
         view_dim = SH_DIM if self.view_encoding is None else self.view_encoding.out_dim
@@ -123,26 +147,33 @@ class SemanticField3D(nn.Module):
         ids = {id(p) for p in self.encoding.parameters()}
         return [p for p in self.parameters() if id(p) not in ids]
 
-    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """points [n, 3] -> σ [n], features h [n, hidden], per-class raw densities s [n, C] or None.
+    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points [n, 3] -> σ [n], features h [n, F], raw densities [n, 1] (σ's) or [n, C] (σ_j's).
 
-        Points the warp maps outside [-1, 1]^3 (only a forward warp has such points inside the
-        scene box: behind or beside its reference frustum) have σ = 0.
+        h is the trunk's hidden layer, or with ``head="direct"`` the grid's colour and logit
+        channels. Points the warp maps outside [-1, 1]^3 (only a forward warp has such points
+        inside the scene box: behind or beside its reference frustum) have σ = 0.
         """
         unit = self.warp(points)
-        out = self.trunk(self.encoding(unit))
-        raw, h = out[:, : self._n_density], F.relu(out[:, self._n_density :])
-        if self.class_head is not None:
+        if self.direct:
+            out = self.encoding(unit)
+            raw, h = out[:, : self._n_density], out[:, self._n_density :]
+        else:
+            out = self.trunk(self.encoding(unit))
+            raw, h = out[:, : self._n_density], F.relu(out[:, self._n_density :])
+        if self.config.class_head == "linear":
             sigmas = trunc_exp(raw[:, 0] + self.config.density_bias)
         else:
             class_sigmas = trunc_exp(raw + self.config.density_bias)  # [n, C]
             sigmas = combine_class_densities(class_sigmas, self.config.density_combine)
         if self.warp.kind != "box":
             sigmas = torch.where((unit.abs() <= 1.0).all(-1), sigmas, torch.zeros_like(sigmas))
-        return sigmas, h, (None if self.class_head is not None else raw)
+        return sigmas, h, raw
 
-    def _class_logits(self, h: torch.Tensor, raw: torch.Tensor | None) -> torch.Tensor:
-        return self.class_head(h) if self.class_head is not None else raw
+    def _class_logits(self, h: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
+        if self.config.class_head == "density":
+            return raw
+        return h[:, 3:] if self.direct else self.class_head(h)
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """points [n, 3] -> σ [n] (no colour or class work)."""
@@ -156,6 +187,8 @@ class SemanticField3D(nn.Module):
     def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
         sigmas, h, raw = self._trunk(points)
+        if self.direct:
+            return sigmas, torch.sigmoid(h[:, :3]), self._class_logits(h, raw)
         rgb_in = h
         if self.config.view_dependent:
             views = sh_directions(directions) if self.view_encoding is None else self.view_encoding(directions)
