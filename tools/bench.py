@@ -375,7 +375,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
     path.with_suffix(".json").write_text(json.dumps(rows, indent=2))
 
 
-KEPT_SECTIONS = ("bench_ddp",)
+KEPT_SECTIONS = ("bench_ddp", "bench_real")
 """Sections other scripts write into the same document (between ``<!-- NAME: begin -->`` and
 ``<!-- NAME: end -->``): kept as they are when this script rewrites it."""
 
