@@ -360,6 +360,8 @@ class SemanticField:
         smooth_sigma: float | None = None,
         convention: str = "opencv",
         distortion=None,
+        near: float | None = None,
+        far: float | None = None,
     ) -> RenderResult:
         """Render one pinhole camera.
 
@@ -372,6 +374,8 @@ class SemanticField:
             smooth_sigma: Gaussian smoothing (pixels) of the class-probability images before the
                 argmax (the seed paper's post-processing); None for none.
             distortion: optional OpenCV (k1, k2, p1, p2).
+            near, far: optional limits of every ray, distances along its unit direction (world
+                units), as a capture's per-view depth range (LLFF's bounds); None: the scene bounds.
         Returns:
             RenderResult.
         """
@@ -390,7 +394,8 @@ class SemanticField:
         dirs_cam = camera_directions_from_pixels(pixel_grid(width, height), fx, fy, cx, cy, distortion)
         directions = dirs_cam @ c2w[:3, :3].T
         origins = np.broadcast_to(c2w[:3, 3], directions.shape)
-        out = self._render_n(self.frame.to_internal(origins), directions)
+        near_n, far_n = (None if v is None else np.full(len(directions), float(v) * self.frame.scale) for v in (near, far))
+        out = self._render_n(self.frame.to_internal(origins), directions, near_n, far_n)
         probs = out["probs"].reshape(height, width, -1)
         if smooth_sigma:
             probs = smooth_class_probs(probs, smooth_sigma)
@@ -404,8 +409,10 @@ class SemanticField:
         )
 
     def render_camera(self, cameras: Cameras, index: int, smooth_sigma: float | None = None) -> RenderResult:
-        """Render camera ``index`` of a :class:`Cameras` batch (intrinsics and distortion kept)."""
+        """Render camera ``index`` of a :class:`Cameras` batch (intrinsics, distortion and its depth
+        range kept: rays span [near, far] where those are finite, as the training rays did)."""
         cam = cameras[index]
+        near, far = float(cam.near[0]), float(cam.far[0])
         return self.render(
             cam.c2w[0],
             int(cam.width[0]),
@@ -415,6 +422,8 @@ class SemanticField:
             cam.cy[0],
             smooth_sigma=smooth_sigma,
             distortion=cam.distortion[0],
+            near=near if np.isfinite(near) else None,
+            far=far if np.isfinite(far) else None,
         )
 
     # ------------------------------------------------------------------ maps

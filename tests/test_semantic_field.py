@@ -245,3 +245,21 @@ def test_old_checkpoint_falls_back_to_bounds(field):
     m = old.occupancy_map(voxel_size=0.1, bounds=MAP_BOX)
     assert m.unknown_rule == "bounds" and m.attributes()["unknown_rule"] == "bounds"
     assert m == field.occupancy_map(voxel_size=0.1, bounds=MAP_BOX, visibility=False)
+
+
+def test_render_keeps_rays_within_near_far_and_render_camera_passes_the_cameras_range(field):
+    """Rays of a render span [near, far] when given; render_camera gives a camera's own depth range
+    (LLFF bounds), as its training rays had it."""
+    c2w = np.eye(4)
+    c2w[:3, 3] = [0.0, 0.0, 3.0]
+    img = field.render(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]), 16, 12, 14.0, near=2.0, far=2.5)
+    assert np.all(img.depth >= 2.0 - 1e-5) and np.all(img.depth <= 2.5 + 1e-5)
+    cams = field.training_cameras()
+    bounded = type(cams)(**{**vars(cams), "near": np.full(len(cams), 2.0), "far": np.full(len(cams), 2.5)})
+    got = field.render_camera(bounded, 0)
+    cam = cams[0]
+    want = field.render(cam.c2w[0], int(cam.width[0]), int(cam.height[0]), (cam.fx[0], cam.fy[0]), cam.cx[0], cam.cy[0],
+                        distortion=cam.distortion[0], near=2.0, far=2.5)
+    np.testing.assert_array_equal(got.depth, want.depth)
+    unbounded = field.render_camera(type(cams)(**{**vars(cams), "near": np.full(len(cams), np.nan), "far": np.full(len(cams), np.inf)}), 0)
+    assert not np.array_equal(unbounded.depth, got.depth)
