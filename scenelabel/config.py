@@ -194,7 +194,7 @@ PRESETS: dict[str, dict] = {
             "encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 256, "density_bias": 0.0,
         },
         "sampling": {"n_steps": 128},
-        "train": {"batch_rays": 4096, "lr_encoding": 0.1, "tv_weight": 0.001},
+        "train": {"steps": 2500, "batch_rays": 4096, "lr_encoding": 0.1, "tv_weight": 0.001},
     },
     # The seed paper's MLP family (positional encoding 10 / 4 frequencies). `paper` samples as the
     # original NeRF: a coarse and a fine network, 64 + 128 samples per ray. Its smaller variants

@@ -125,7 +125,7 @@ def table_lines(rows: list[dict]) -> list[str]:
         lines += [
             "",
             f"Target (issue 4): fern >= {FERN_TARGET_PSNR:g} dB held out in <= {FERN_TARGET_SECONDS / 60:g} minutes: "
-            f"**{'met' if met else 'not met'}** (best{' within the time' if in_time else ''}: {best['psnr']:.2f} dB "
+            f"**{'met' if met else 'not met'}** (best{' within the time' if in_time else ''}: {best['psnr']:.3f} dB "
             f"with preset {best['preset']}, warp {best['warp']}, build {best['build_seconds']:.0f} s).",
         ]
     return lines
