@@ -1,4 +1,5 @@
-"""Compiled loops (numba) behind :mod:`scenelabel.baking`, one point or one ray at a time, no
+"""Compiled loops (numba) behind :mod:`scenelabel.baking` and the dense-grid encoding
+(:func:`scenelabel.fields.encodings.trilinear_from_grid`), one point or one ray at a time, no
 allocation inside the loops. Imported on first use (importing numba takes a while).
 
 A lattice is read through ``frame`` = (corner x, y, z, 1 / spacing): vertex ``[i, j, k]`` sits at
