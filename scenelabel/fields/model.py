@@ -50,16 +50,12 @@ def dense_grid_shape(warp: nn.Module, resolution: int) -> tuple[int, int, int]:
     return tuple(int(c) + 1 for c in cells)
 
 
-def build_encoding(config: FieldConfig, warp: nn.Module, channels: int | None = None) -> nn.Module:
-    """The encoding ``config`` names; a dense grid is shaped by the warp (:func:`dense_grid_shape`)
-    and has ``channels`` (default ``config.channels``)."""
+def build_encoding(config: FieldConfig, warp: nn.Module) -> nn.Module:
+    """The encoding ``config`` names; a dense grid is shaped by the warp (:func:`dense_grid_shape`)."""
     if config.encoding == "triplane":
         return TriPlane(config.resolutions, config.channels)
     if config.encoding == "dense":
-        shape = dense_grid_shape(warp, config.grid_resolution)
-        if channels is None:
-            return DenseGrid(shape, config.channels)
-        return DenseGrid(shape, channels, init_std=0.0)
+        return DenseGrid(dense_grid_shape(warp, config.grid_resolution), config.channels)
     if config.encoding == "positional":
         return Positional(config.pe_frequencies)
     raise ConfigError(f"unknown encoding {config.encoding!r}; choose 'triplane', 'dense' or 'positional'")
@@ -129,7 +125,8 @@ class SemanticField3D(nn.Module):
         self.direct = config.head == "direct"
         if self.direct:
             n_logits = num_classes if config.class_head == "linear" else 0
-            self.encoding = build_encoding(config, self.warp, self._n_density + 3 + n_logits)
+            shape = dense_grid_shape(self.warp, config.grid_resolution)
+            self.encoding = DenseGrid(shape, self._n_density + 3 + n_logits, init_std=0.0)  # σ = exp(bias), grey
             return
         self.encoding = build_encoding(config, self.warp)
         h = config.hidden
@@ -155,12 +152,10 @@ class SemanticField3D(nn.Module):
         inside the scene box: behind or beside its reference frustum) have σ = 0.
         """
         unit = self.warp(points)
-        if self.direct:
-            out = self.encoding(unit)
-            raw, h = out[:, : self._n_density], out[:, self._n_density :]
-        else:
-            out = self.trunk(self.encoding(unit))
-            raw, h = out[:, : self._n_density], F.relu(out[:, self._n_density :])
+        out = self.encoding(unit) if self.direct else self.trunk(self.encoding(unit))
+        raw, h = out[:, : self._n_density], out[:, self._n_density :]
+        if not self.direct:
+            h = F.relu(h)
         if self.config.class_head == "linear":
             sigmas = trunc_exp(raw[:, 0] + self.config.density_bias)
         else:
