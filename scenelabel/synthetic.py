@@ -556,13 +556,16 @@ def _focal_from_fov(width: int, fov_x_deg: float) -> float:
 
 def write_scene(
     path: str | Path, scene: SyntheticScene, c2ws: np.ndarray, width: int, height: int,
-    fov_x_deg: float = 50.0,
+    fov_x_deg: float = 50.0, bounds_in_file: bool = True,
 ) -> Path:
     """Render every camera of ``c2ws`` ([n, 4, 4] OpenGL) and write the scene folder.
 
-    Per-frame near/far are NEAR_FACTOR x min and FAR_FACTOR x max of the true depth over the
-    frame's hit pixels (background ignored); a frame that sees nothing gets the range of the
-    scene's aabb corners. Returns the folder path.
+    With ``bounds_in_file`` (default), every frame gets ``near``/``far`` and the file a top-level
+    ``aabb`` (:attr:`SyntheticScene.aabb`): per-frame near/far are NEAR_FACTOR x min and
+    FAR_FACTOR x max of the true depth over the frame's hit pixels (background ignored); a frame
+    that sees nothing gets the range of the scene's aabb corners. With ``bounds_in_file=False``
+    neither per-frame near/far nor ``aabb`` is written, like users' files (nerfstudio never
+    writes them); everything else is identical. Returns the folder path.
     """
     if width < 1 or height < 1:
         raise InputError(f"image size must be positive, got {width}x{height}", field="width")
@@ -587,16 +590,15 @@ def write_scene(
         else:
             dist = np.linalg.norm(corners - c2w[:3, 3], axis=1)
             near, far = max(1e-3, NEAR_FACTOR * dist.min()), FAR_FACTOR * dist.max()
-        frames.append(
-            {
-                "file_path": f"images/{name}.png",
-                "label_path": f"labels/{name}.png",
-                "depth_path": f"depths/{name}.npy",
-                "transform_matrix": np.asarray(c2w, np.float64).tolist(),
-                "near": float(near),
-                "far": float(far),
-            }
-        )
+        frame = {
+            "file_path": f"images/{name}.png",
+            "label_path": f"labels/{name}.png",
+            "depth_path": f"depths/{name}.npy",
+            "transform_matrix": np.asarray(c2w, np.float64).tolist(),
+        }
+        if bounds_in_file:
+            frame["near"], frame["far"] = float(near), float(far)
+        frames.append(frame)
     transforms = {
         "camera_model": "PINHOLE",
         "fl_x": f,
@@ -609,6 +611,8 @@ def write_scene(
         "aabb": aabb.tolist(),
         "frames": frames,
     }
+    if not bounds_in_file:
+        del transforms["aabb"]
     classes = {
         "classes": [{"id": c.id, "name": c.name, "color": list(c.color)} for c in scene.classes],
         "ignore_index": scene.ignore_index,
