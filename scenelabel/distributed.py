@@ -16,10 +16,11 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.distributed as dist
 
-__all__ = ["DistContext", "init_from_env", "leave", "backend_for", "all_reduce_mean", "broadcast_module_buffers"]
+__all__ = ["DistContext", "init_from_env", "leave", "backend_for", "all_reduce_mean", "broadcast_array", "broadcast_module_buffers"]
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,16 @@ def all_reduce_mean(values: torch.Tensor) -> torch.Tensor:
     values = values.clone()
     dist.all_reduce(values, op=dist.ReduceOp.SUM)
     return values / dist.get_world_size()
+
+
+def broadcast_array(values: np.ndarray, device: torch.device = torch.device("cpu"), src: int = 0) -> np.ndarray:
+    """Rank ``src``'s float64 ``values`` on every rank (``values`` itself when not distributed);
+    ``device``: where the collective runs (a CUDA device for nccl)."""
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return values
+    tensor = torch.as_tensor(np.asarray(values, np.float64), device=device).clone()
+    dist.broadcast(tensor, src)
+    return tensor.cpu().numpy()
 
 
 def broadcast_module_buffers(module: torch.nn.Module, src: int = 0) -> None:

@@ -15,7 +15,7 @@ from .errors import InputError
 from .rays import camera_directions_from_pixels
 from .scene import Cameras
 
-__all__ = ["SceneFrame", "aabb_from_cameras", "frustum_points", "near_far_or_fallback"]
+__all__ = ["SceneFrame", "aabb_from_cameras", "aabb_from_points", "frustum_points", "near_far_or_fallback"]
 
 FALLBACK_FAR_FACTOR = 1.5
 """Without near/far, far = this x the diameter of the camera centres (an inward-looking capture)."""
@@ -25,6 +25,18 @@ FALLBACK_NEAR_FRACTION = 0.02
 
 AABB_PAD = 0.02
 """Bounds are padded by this fraction of their longest side on every face."""
+
+POINTS_PERCENTILES = (0.5, 99.5)
+"""Bounds from observed points span these percentiles of the points on each axis (stray points
+beyond them move nothing)."""
+
+POINTS_PAD = 0.1
+"""Bounds from observed points are padded by this fraction of their longest side on every face: a
+wall whose observed points fall short of its plane (a coarse field's depth errs both ways) is
+still inside the box."""
+
+MIN_BOUNDING_POINTS = 100
+"""Fewer observed points than this do not bound a scene (the camera frusta do instead)."""
 
 
 def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.ndarray:
@@ -70,8 +82,33 @@ def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
     return near, far
 
 
-def aabb_from_cameras(cameras: Cameras, explicit: np.ndarray | None = None) -> tuple[np.ndarray, str]:
-    """Scene bounds: explicit ones when given, else the union of the camera frusta over [near, far].
+def aabb_from_points(points: np.ndarray) -> np.ndarray | None:
+    """Bounds of observed points: POINTS_PERCENTILES per axis, padded by POINTS_PAD of the longest
+    side; None for fewer than MIN_BOUNDING_POINTS points or a flat point set.
+
+    Args:
+        points: [k, 3] world points (e.g. where the training rays of a coarse field end).
+    Returns:
+        aabb [2, 3] float64 or None.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if len(points) < MIN_BOUNDING_POINTS:
+        return None
+    lo, hi = np.percentile(points, POINTS_PERCENTILES, axis=0)
+    extent = float((hi - lo).max())
+    if not extent > 0:
+        return None
+    pad = POINTS_PAD * extent
+    return np.stack([lo - pad, hi + pad])
+
+
+def aabb_from_cameras(
+    cameras: Cameras, explicit: np.ndarray | None = None, points: np.ndarray | None = None
+) -> tuple[np.ndarray, str]:
+    """Scene bounds: explicit ones when given; else, where the cameras have no far and enough
+    observed ``points`` are given, the points' bounds (:func:`aabb_from_points`) within the camera
+    frusta; else the union of the camera frusta over [near, far].
 
     Where a camera has no near/far, far = FALLBACK_FAR_FACTOR x the camera-centre diameter and
     near = FALLBACK_NEAR_FRACTION x far.
@@ -91,7 +128,13 @@ def aabb_from_cameras(cameras: Cameras, explicit: np.ndarray | None = None) -> t
     pts = frustum_points(cameras, near, far)
     lo, hi = pts.min(0), pts.max(0)
     pad = AABB_PAD * float((hi - lo).max())
-    return np.stack([lo - pad, hi + pad]), source
+    frusta = np.stack([lo - pad, hi + pad])
+    observed = None if points is None or np.all(np.isfinite(cameras.far)) else aabb_from_points(points)
+    if observed is not None:
+        clipped = np.stack([np.maximum(observed[0], frusta[0]), np.minimum(observed[1], frusta[1])])
+        if np.all(clipped[1] > clipped[0]):
+            return clipped, f"observed geometry ({len(points)} surface points; the input has no near/far or aabb)"
+    return frusta, source
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ __all__ = [
     "composite",
     "composite_rgb",
     "depth_from_weights",
+    "depth_at_transmittance",
     "class_probs_from_weights",
     "class_log_probs_from_weights",
     "class_log_probs_from_scores",
@@ -119,6 +120,38 @@ def weights_from_density(
     alphas = alphas_from_density(sigmas, deltas)
     trans = trans_from_density(sigmas, deltas)
     return trans * alphas, trans, alphas
+
+
+def depth_at_transmittance(
+    sigmas: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor, level: float = 0.5
+) -> torch.Tensor:
+    """Where each ray's transmittance T(t) = exp(-∫ σ) (eq. 1) falls to ``level``: with 0.5, the
+    median termination depth, the surface as the maps define it (docs/conventions.md).
+
+    σ is constant within each interval, so T is integrated exactly: inside the interval where the
+    optical depth τ(t) crosses L = -log(level), t = t_start + (L - τ_before) / σ.
+
+    Args:
+        sigmas: [n_rays, n_samples] densities (per unit length).
+        t_starts, t_ends: [n_rays, n_samples] sorted, non-overlapping intervals.
+        level: transmittance in (0, 1).
+    Returns:
+        [n_rays] depth; ``inf`` where the ray keeps more than ``level`` to its last interval's end.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must lie in (0, 1), got {level}")
+    target = -math.log(level)
+    tau = optical_depth(sigmas, t_ends - t_starts)
+    after = torch.cumsum(tau, dim=-1)  # τ at each interval's end
+    crossed = after >= target
+    reached = crossed.any(-1)
+    i = crossed.to(torch.int8).argmax(-1, keepdim=True)  # the first interval that crosses
+    before = (after - tau).gather(-1, i)[:, 0]
+    sigma = sigmas.clamp(0.0, SIGMA_MAX).gather(-1, i)[:, 0].to(after.dtype)
+    start, end = t_starts.gather(-1, i)[:, 0], t_ends.gather(-1, i)[:, 0]
+    inside = start + (target - before) / sigma.clamp(min=torch.finfo(after.dtype).tiny)
+    depth = torch.minimum(inside.to(start.dtype), end)
+    return torch.where(reached, depth, torch.full_like(depth, math.inf))
 
 
 def composite(weights: torch.Tensor, values: torch.Tensor) -> torch.Tensor:

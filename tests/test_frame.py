@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from scenelabel.errors import InputError
-from scenelabel.frame import SceneFrame, aabb_from_cameras
+from scenelabel.frame import MIN_BOUNDING_POINTS, POINTS_PAD, SceneFrame, aabb_from_cameras, aabb_from_points
 from scenelabel.scene import Cameras
 
 
@@ -41,3 +41,36 @@ def test_scene_frame_is_an_isotropic_similarity():
     again = SceneFrame.from_dict(frame.to_dict())
     np.testing.assert_array_equal(again.centre, frame.centre)
     assert again.scale == frame.scale
+
+
+def test_bounds_from_points_are_robust_and_padded():
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-3.0, -2.0, 0.0], [3.0, 2.0, 2.5], (20000, 3))
+    strays = rng.uniform(-50.0, 50.0, (50, 3))  # 0.25 %: beyond the percentiles
+    aabb = aabb_from_points(np.concatenate([points, strays]))
+    pad = POINTS_PAD * 6.0
+    np.testing.assert_allclose(aabb, [[-3.0 - pad, -2.0 - pad, -pad], [3.0 + pad, 2.0 + pad, 2.5 + pad]], atol=0.1)
+    assert aabb_from_points(points[: MIN_BOUNDING_POINTS - 1]) is None
+    assert aabb_from_points(np.zeros((500, 3))) is None  # one point repeated bounds nothing
+    assert aabb_from_points(np.full((500, 3), np.nan)) is None
+
+
+def test_observed_points_bound_a_scene_without_near_far_within_its_frusta():
+    c2ws = np.stack([looking_down(3.0), looking_down(3.0)])
+    c2ws[:, 0, 3] = [-2.0, 2.0]  # far = FALLBACK_FAR_FACTOR x 4 m reaches below the points
+    cams = Cameras.create(c2ws, 50.0, 50.0, 50.0, 50.0, 100, 100)  # two cameras, no near/far
+    frusta, frusta_source = aabb_from_cameras(cams)
+    points = np.random.default_rng(1).uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 0.5], (1000, 3))
+    aabb, source = aabb_from_cameras(cams, None, points)
+    assert source.startswith("observed geometry") and "no near/far" in frusta_source
+    np.testing.assert_allclose(aabb, aabb_from_points(points))  # inside the frusta already
+    assert np.prod(aabb[1] - aabb[0]) < 0.01 * np.prod(frusta[1] - frusta[0])
+    # points reaching outside the frusta are cut to them
+    far_points = np.concatenate([points, points + [0.0, 0.0, 100.0]])
+    cut, _ = aabb_from_cameras(cams, None, far_points)
+    assert cut[1, 2] == frusta[1, 2]
+    # given near/far, an explicit box, or too few points: the points are not used
+    with_far = Cameras.create(c2ws, 50.0, 50.0, 50.0, 50.0, 100, 100, near=1.0, far=9.0)
+    assert "near/far" in aabb_from_cameras(with_far, None, points)[1]
+    assert aabb_from_cameras(cams, np.array([[0, 0, 0], [1, 1, 1.0]]), points)[1] == "explicit aabb"
+    np.testing.assert_array_equal(aabb_from_cameras(cams, None, points[:10])[0], frusta)

@@ -170,3 +170,27 @@ def test_forward_warp_build_loads_and_answers(forward_scene, tmp_path):
         assert np.isfinite(getattr(out, name)).all(), name
     r = field.query_rays(np.array([[0.0, -3.0, 1.0]]), np.array([[0.0, 1.0, -0.25]]))
     assert np.isfinite(r.depth).all() and np.isfinite(r.rgb).all()
+
+
+# ------------------------------------------------------------------ bounds from the observed geometry
+
+
+def test_a_room_without_near_far_or_aabb_is_bounded_by_what_its_cameras_see(tmp_path):
+    """A nerfstudio-style room (no near/far, no aabb): the coarse fit bounds the room itself, not
+    the camera frusta out to a guessed far plane (a box many times the room's volume)."""
+    from scenelabel.pipeline import prepare_training
+    from scenelabel.synthetic import furnished_room_geometry, room_cameras
+
+    room = furnished_room_geometry()
+    path = write_scene(tmp_path / "room", room, room_cameras(24, seed=0), 64, 48, bounds_in_file=False)
+    scene = load_scene(path)
+    assert scene.aabb is None and np.all(np.isnan(scene.cameras.far))
+    frusta, _ = aabb_from_cameras(scene.cameras)
+    _, static, _ = prepare_training(scene, preset("quick"), torch.device("cpu"))
+    aabb = np.asarray(static["aabb_world"])
+    assert static["aabb_source"].startswith("observed geometry")
+    interior = np.array([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.6]])  # the walls', floor's and ceiling's inner faces
+    assert np.all(aabb[0] <= interior[0]) and np.all(aabb[1] >= interior[1])
+    volume = np.prod(aabb[1] - aabb[0])
+    assert volume < 4.0 * np.prod(room.bounds[1] - room.bounds[0])
+    assert volume < 0.2 * np.prod(frusta[1] - frusta[0])

@@ -14,6 +14,7 @@ from scenelabel.rendering import (
     class_log_probs_from_scores,
     class_probs_from_weights,
     composite_rgb,
+    depth_at_transmittance,
     depth_from_weights,
     distortion_from_weights,
     weights_from_density,
@@ -268,3 +269,51 @@ def test_distortion_finite_with_finite_gradients_at_the_extremes(dtype):
     out.sum().backward()
     assert torch.all(torch.isfinite(out)) and torch.all(out >= 0) and torch.all(torch.isfinite(w.grad))
     np.testing.assert_allclose(out.detach().double().numpy(), naive_distortion(w.detach(), s0, s1), rtol=1e-5, atol=1e-7)
+
+
+def _naive_depth_at_transmittance(sigmas, t_starts, t_ends, level):
+    """Float64 loop: walk each ray's intervals, integrating exp(-σ t) exactly."""
+    out = []
+    target = -math.log(level)
+    for s_row, a_row, b_row in zip(sigmas.tolist(), t_starts.tolist(), t_ends.tolist()):
+        tau, depth = 0.0, math.inf
+        for s, a, b in zip(s_row, a_row, b_row):
+            step = max(s, 0.0) * (b - a)
+            if tau + step >= target:
+                depth = min(a + (target - tau) / s, b)
+                break
+            tau += step
+        out.append(depth)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("level", [0.5, 0.1, 0.9])
+def test_depth_at_transmittance_matches_naive_float64_loop(level):
+    gen = torch.Generator().manual_seed(3)
+    sigmas = torch.rand(200, 40, generator=gen, dtype=torch.float64) * 3.0
+    sigmas[sigmas < 1.5] = 0.0  # gaps of empty space
+    sigmas[::2] *= 0.01  # faint rays that keep more than the level
+    edges = torch.cumsum(torch.rand(200, 41, generator=gen, dtype=torch.float64) * 0.1, -1)
+    t_starts, t_ends = edges[:, :-1], edges[:, 1:]
+    got = depth_at_transmittance(sigmas, t_starts, t_ends, level)
+    want = _naive_depth_at_transmittance(sigmas.numpy(), t_starts.numpy(), t_ends.numpy(), level)
+    assert np.isinf(want).any() and np.isfinite(want).any()  # both kinds of ray are tested
+    np.testing.assert_allclose(got.numpy(), want, rtol=1e-12, atol=1e-12)
+
+
+def test_depth_at_transmittance_of_a_constant_density_and_at_the_extremes():
+    # σ = 2 from t = 1 on: T(t) = exp(-2 (t - 1)) = 0.5 at t = 1 + ln 2 / 2
+    t = torch.linspace(0.0, 5.0, 51, dtype=torch.float64)
+    sigmas = torch.where(t[:-1] >= 1.0, 2.0, 0.0)[None]
+    got = depth_at_transmittance(sigmas, t[None, :-1], t[None, 1:])
+    assert abs(float(got) - (1.0 + math.log(2.0) / 2.0)) < 1e-12
+    # an opaque sample is crossed where it starts; an empty ray never; huge and tiny densities stay finite
+    for dtype in (torch.float32, torch.float64):
+        starts = torch.tensor([[0.0, 1.0, 2.0]] * 4, dtype=dtype)
+        ends = starts + 1.0
+        sigmas = torch.tensor([[0.0, 3e38, 0.0], [0.0, 0.0, 0.0], [1e-30, 1e-30, 1e-30], [0.0, 1e10, 1e10]], dtype=dtype)
+        depth = depth_at_transmittance(sigmas, starts, ends)
+        assert float(depth[0]) == pytest.approx(1.0, abs=1e-6) and math.isinf(float(depth[1])) and math.isinf(float(depth[2]))
+        assert float(depth[3]) == pytest.approx(1.0, abs=1e-6)
+    with pytest.raises(ValueError, match="level"):
+        depth_at_transmittance(sigmas, starts, ends, 1.0)
