@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ from .frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fa
 from .io import load_scene
 from .metrics import confusion_matrix, depth_error, miou, psnr, ssim
 from .postprocess import colorize_labels, side_by_side, smooth_class_probs
-from .rendering import depth_at_transmittance
+from .rendering import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from .sampling import OccupancyGrid, march
 from .scene import UNLABELLED_NAME, Cameras, ClassMap, Scene
 from .semantic_field import TRAIN_CAMERAS_KEY, SemanticField
@@ -169,10 +170,12 @@ def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
 
 
 def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: float | None = None) -> BuildConfig:
-    """The config saved with the checkpoint in ``out_dir``, with an optional new step count or budget."""
+    """The config saved with the checkpoint in ``out_dir``, with an optional new step count or budget
+    (a step count alone lifts the saved budget)."""
     config = config_from_dict(load_checkpoint(out_dir)["config"])
     if steps is not None:
         config.train.steps = steps
+        config.train.time_budget = None
     if time_budget is not None:
         config.train.time_budget = time_budget
     return config
@@ -259,9 +262,12 @@ def observed_points(
 
     A BOUNDS_PRESET field with BOUNDS_OVERRIDES (and ``config``'s warp, background and seed) is
     trained over the camera frusta (:func:`scenelabel.frame.aabb_from_cameras`); then
-    BOUNDS_RAYS random training rays are marched through it, and where a ray's transmittance falls
-    to 0.5 (:func:`scenelabel.rendering.depth_at_transmittance`, the surface as the maps define
-    it; the expected depth of a young field sits in front of far walls) gives one point. For inputs without near/far or a box (a
+    BOUNDS_RAYS random training rays are marched through it; each ray that gets at least half
+    opaque gives one point, at the farther of where its transmittance falls to 0.5
+    (:func:`scenelabel.rendering.depth_at_transmittance`, the surface as the maps define it) and
+    its largest weight (:func:`scenelabel.rendering.depth_of_max_weight`): a young field's fog in
+    front of a far wall moves the first (and the expected depth) short of the wall, and a faint
+    wall behind fog moves the second. For inputs without near/far or a box (a
     nerfstudio transforms.json never carries them), whose frusta reach far past the scene.
 
     Returns:
@@ -279,7 +285,10 @@ def observed_points(
     frusta, _ = aabb_from_cameras(scene.cameras)
     trainer, frame, _ = _trainer(scene, train_idx, class_map, frusta, coarse_config, device)
     if progress:
-        print(f"bounds: the input has no near/far or aabb: fitting them to what the cameras see ({coarse_config.train.steps} coarse steps)")
+        print(
+            f"bounds: the input has no near/far or aabb: fitting them to what the cameras see ({coarse_config.train.steps} coarse steps)",
+            file=sys.stderr,
+        )
     trainer.run(progress=progress)
     generator = torch.Generator().manual_seed(tc.seed)
     pick = trainer.ray_pool[torch.randint(len(trainer.ray_pool), (BOUNDS_RAYS,), generator=generator).to(device)]
@@ -289,7 +298,9 @@ def observed_points(
         t_starts, t_ends = march(model.warp.spacing, t_min, t_max, trainer.step_size, trainer.n_samples)
         points = o[:, None] + 0.5 * (t_starts + t_ends)[..., None] * d[:, None]
         sigmas = model.density(points.reshape(-1, 3)).reshape(t_starts.shape) * trainer.grid(points)
-        depth = depth_at_transmittance(sigmas, t_starts, t_ends)
+        median = depth_at_transmittance(sigmas, t_starts, t_ends)
+        mode = depth_of_max_weight(weights_from_density(sigmas, t_ends - t_starts)[0], t_starts, t_ends)
+        depth = torch.maximum(median, mode)  # inf where the ray never gets half opaque
     hit = torch.isfinite(depth)
     return frame.to_world((o[hit] + depth[hit, None] * d[hit]).cpu().numpy())
 
@@ -337,6 +348,15 @@ def prepare_training(
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
     return trainer, static, test_idx
+
+
+def _training_plan(config: BuildConfig, static: dict) -> str:
+    """One line said before training: the bounds, and how long training will take at most."""
+    tc = config.train
+    limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:g} s, whichever comes first"
+    aabb = np.asarray(static["aabb_world"])
+    size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
+    return f"bounds {size} ({static['aabb_source']}); training ({config.preset}): {limit}"
 
 
 def _training_metrics(trainer: Trainer) -> dict:
@@ -403,6 +423,8 @@ def build(
 
         if resume:
             _resume(trainer, ckpt_path, static)
+        if progress and context.is_main:
+            print(_training_plan(config, static), file=sys.stderr)
         state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
     except TrainingInterrupted as err:
         raise TrainingInterrupted(

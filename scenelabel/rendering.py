@@ -42,6 +42,7 @@ __all__ = [
     "composite_rgb",
     "depth_from_weights",
     "depth_at_transmittance",
+    "depth_of_max_weight",
     "class_probs_from_weights",
     "class_log_probs_from_weights",
     "class_log_probs_from_scores",
@@ -152,6 +153,21 @@ def depth_at_transmittance(
     inside = start + (target - before) / sigma.clamp(min=torch.finfo(after.dtype).tiny)
     depth = torch.minimum(inside.to(start.dtype), end)
     return torch.where(reached, depth, torch.full_like(depth, math.inf))
+
+
+def depth_of_max_weight(weights: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:
+    """The middle of each ray's interval of largest weight w_i: the mode of its termination
+    distribution (a surface's spike, where fog spread in front of it moves the median and the mean).
+
+    Args:
+        weights: [n_rays, n_samples].
+        t_starts, t_ends: [n_rays, n_samples].
+    Returns:
+        [n_rays] distance; ``inf`` for a ray whose weights sum to at most OPACITY_EPS.
+    """
+    i = weights.argmax(-1, keepdim=True)
+    t = (0.5 * (t_starts + t_ends)).gather(-1, i)[:, 0]
+    return torch.where(weights.sum(-1) > OPACITY_EPS, t, torch.full_like(t, math.inf))
 
 
 def composite(weights: torch.Tensor, values: torch.Tensor) -> torch.Tensor:

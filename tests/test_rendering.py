@@ -16,6 +16,7 @@ from scenelabel.rendering import (
     composite_rgb,
     depth_at_transmittance,
     depth_from_weights,
+    depth_of_max_weight,
     distortion_from_weights,
     weights_from_density,
 )
@@ -317,3 +318,13 @@ def test_depth_at_transmittance_of_a_constant_density_and_at_the_extremes():
         assert float(depth[3]) == pytest.approx(1.0, abs=1e-6)
     with pytest.raises(ValueError, match="level"):
         depth_at_transmittance(sigmas, starts, ends, 1.0)
+
+
+def test_depth_of_max_weight_is_the_middle_of_the_heaviest_interval():
+    t_starts = torch.tensor([[0.0, 1.0, 2.0, 3.0]] * 3, dtype=torch.float64)
+    t_ends = t_starts + 1.0
+    weights = torch.tensor([[0.2, 0.1, 0.6, 0.05], [0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.3]], dtype=torch.float64)
+    depth = depth_of_max_weight(weights, t_starts, t_ends)
+    assert float(depth[0]) == 2.5  # the spike, not the mean (1.9) nor the median
+    assert math.isinf(float(depth[1]))  # no weight: no surface
+    assert float(depth[2]) == 0.5  # ties: the nearer interval
