@@ -26,6 +26,7 @@ def _overrides(args: argparse.Namespace) -> dict:
     train: dict = {}
     if args.steps is not None:
         train["steps"] = args.steps
+        train["time_budget"] = None  # the steps asked for, not the preset's budget
     if args.time_budget is not None:
         train["time_budget"] = args.time_budget
     if args.seed is not None:
@@ -56,8 +57,10 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
     p.add_argument(
         "--preset", default=default_preset, choices=sorted(PRESETS), help=f"model/training preset (default: {default_preset})"
     )
-    p.add_argument("--steps", type=int, help="training steps")
-    p.add_argument("--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds")
+    p.add_argument("--steps", type=int, help="training steps (alone: no time budget)")
+    p.add_argument(
+        "--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds (fast: 150 by default)"
+    )
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
     p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all)")
     p.add_argument("--voxel-size", type=float, help="occupancy-map voxel size in world units")

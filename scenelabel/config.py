@@ -125,6 +125,9 @@ class TrainConfig:
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
     # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off)
     distortion_weight: float = 0.0
+    # weight of the solid-interior term (losses.solid_interior_loss): density pushed up just past
+    # where each ray becomes opaque, so that points inside walls and furniture read occupied (0: off)
+    solid_weight: float = 0.0
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -143,7 +146,7 @@ class TrainConfig:
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
-        for name in ("distortion_weight", "tv_weight"):
+        for name in ("distortion_weight", "tv_weight", "solid_weight"):
             w = getattr(self, name)
             if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
                 raise ConfigError(f"train.{name} must be a finite number >= 0, got {w!r}")
@@ -175,7 +178,10 @@ _MLP_FIELD = {"encoding": "positional", "view_encoding": "positional"}
 _MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decaying 10x)
 
 PRESETS: dict[str, dict] = {
-    "fast": {},  # the default: tri-plane 64+128 x 8 channels, 1024-ray batches
+    # the default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
+    # training, whichever comes first, so that a default build's time is known before it starts
+    # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m)
+    "fast": {"train": {"time_budget": 150.0}},
     "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
         "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},
         "sampling": {"n_steps": 128, "grid_resolution": 32, "grid_warmup": 16},

@@ -154,3 +154,29 @@ def test_segment_refuses_to_overwrite_and_sfm_stops_on_unrelated_photos(tmp_path
     proc = run_cli("sfm", photos)
     assert proc.returncode == 2, proc.stderr
     assert "registered only 0 of 3 images" in proc.stderr and "matcher='sequential'" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    "flags, steps, budget",
+    [
+        ([], 2000, 150.0),  # the default build: at most 2000 steps or 150 s
+        (["--steps", "5000"], 5000, None),  # the steps asked for, not the preset's budget
+        (["--time-budget", "60"], 2000, 60.0),
+        (["--steps", "5000", "--time-budget", "600"], 5000, 600.0),
+    ],
+)
+def test_steps_and_time_budget_flags_override_the_default_budget(flags, steps, budget):
+    from scenelabel import preset
+    from scenelabel.cli import _overrides, make_parser
+
+    args = make_parser().parse_args(["build", "room", *flags])
+    config = preset(args.preset, _overrides(args))
+    assert (config.train.steps, config.train.time_budget) == (steps, budget)
+
+
+def test_build_says_its_bounds_and_training_limit_before_training(tmp_path):
+    scene = write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18)
+    proc = run_cli("build", scene, "--out", tmp_path / "out", "--preset", "quick", "--time-budget", "60", "--steps", "5")
+    assert proc.returncode == 0, proc.stderr
+    plan = next(line for line in proc.stderr.splitlines() if line.startswith("bounds "))
+    assert "(explicit aabb)" in plan and "training (quick): at most 5 steps or 60 s, whichever comes first" in plan
