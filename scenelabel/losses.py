@@ -5,7 +5,35 @@ from __future__ import annotations
 import torch
 
 __all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights", "total_variation",
-           "total_variation_grad"]
+           "total_variation_grad", "solid_interior_loss"]
+
+SOLID_TAU = 1.4
+"""The solid-interior term asks for this optical depth per marching step inside surfaces: one step
+there is 1 - exp(-1.4) ≈ 75% opaque (a point is occupied at 50%)."""
+
+SOLID_SIGMA_EPS = 1e-10
+"""Added to σ before its log in :func:`solid_interior_loss`: σ = 0 (outside a forward warp's
+frustum) gives a finite loss and gradient."""
+
+
+def solid_interior_loss(sigmas: torch.Tensor, step: float, tau: float = SOLID_TAU) -> torch.Tensor:
+    """Mean hinge on log density, ``relu(log(tau / step) - log(σ + SOLID_SIGMA_EPS))``, at points
+    just inside the surfaces the rays render: those points barely change any pixel (the ray is
+    nearly opaque there), so photometric losses leave their density where it started, and a
+    point on a wall or a table top reads as free space. With σ = exp(raw), the gradient on raw is
+    -1 per point until one marching step there has optical depth ``tau``.
+
+    Args:
+        sigmas: [n] densities (per unit length) at points inside surfaces.
+        step: the marching step (same length unit).
+        tau: target optical depth per step.
+    Returns:
+        scalar; 0 for no points.
+    """
+    if sigmas.numel() == 0:
+        return sigmas.new_zeros(())
+    target = torch.log(torch.as_tensor(tau / step, dtype=sigmas.dtype, device=sigmas.device))
+    return torch.relu(target - torch.log(sigmas + SOLID_SIGMA_EPS)).mean()
 
 
 def photometric_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

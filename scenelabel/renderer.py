@@ -15,6 +15,7 @@ from .rendering import (
     class_log_probs_from_scores,
     class_log_probs_from_weights,
     composite_rgb,
+    depth_at_transmittance,
     depth_from_weights,
     distortion_from_weights,
     weights_from_density,
@@ -29,6 +30,10 @@ EARLY_STOP_TRANS = 1e-4
 EARLY_STOP_SEGMENT = 16
 """Samples per ray evaluated between two transmittance checks."""
 
+OPAQUE_TRANS = 0.1
+"""``RayBundleOutput.t_opaque`` is where a ray's transmittance falls to this: past it, what the
+field holds changes a pixel by at most this fraction (the solid-interior term trains there)."""
+
 
 @dataclass
 class RayBundleOutput:
@@ -40,6 +45,7 @@ class RayBundleOutput:
     class_log_probs: torch.Tensor  # [n_rays, C]
     n_evaluated: int  # samples the field evaluated
     distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
+    t_opaque: torch.Tensor  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
 
 
 def ray_intervals(
@@ -274,7 +280,8 @@ def _composite(field, at, intervals, samples, limits, background, detach_semanti
     starts = zeros.index_put(packed, t_starts[rows, cols])
     ends = zeros.index_put(packed, t_ends[rows, cols])
     t_mids = 0.5 * (starts + ends)
-    weights, _, _ = weights_from_density(zeros.index_put(packed, sigmas.to(zeros.dtype)), ends - starts)
+    packed_sigmas = zeros.index_put(packed, sigmas.to(zeros.dtype))
+    weights, _, _ = weights_from_density(packed_sigmas, ends - starts)
     logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
     composite_classes = (
         class_log_probs_from_scores if field.config.semantic_rendering == "scores" else class_log_probs_from_weights
@@ -294,4 +301,5 @@ def _composite(field, at, intervals, samples, limits, background, detach_semanti
         class_log_probs=composite_classes(weights.detach() if detach_semantic_weights else weights, logits),
         n_evaluated=int(rows.shape[0]),
         distortion=distortion_from_weights(weights, s_starts, s_ends),
+        t_opaque=depth_at_transmittance(packed_sigmas.detach(), starts, ends, OPAQUE_TRANS),
     )

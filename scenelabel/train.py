@@ -20,7 +20,14 @@ from .distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from .errors import ConfigError, TrainingError, TrainingInterrupted
 from .fields.model import SemanticField3D
 from .frame import SceneFrame
-from .losses import class_balance_weights, photometric_mse, semantic_cross_entropy, semantic_focal_loss, total_variation_grad
+from .losses import (
+    class_balance_weights,
+    photometric_mse,
+    semantic_cross_entropy,
+    semantic_focal_loss,
+    solid_interior_loss,
+    total_variation_grad,
+)
 from .rays import rays_from_cameras
 from .renderer import RayBundleOutput, ray_intervals, render_rays, render_rays_hierarchical
 from .sampling import OccupancyGrid
@@ -38,6 +45,14 @@ MSE_EMA = 0.1
 TV_SLAB = 16
 """Vertex rows (first grid axis) of the random slab whose total variation is added each step
 (``train.tv_weight``): a stochastic estimate of the whole grid's mean, at a fraction of the cost."""
+
+SOLID_DEPTH_STEPS = 2.0
+"""The solid-interior term's points lie up to this many marching steps past where each training ray
+becomes opaque (``RayBundleOutput.t_opaque``): inside the surface it renders, thin objects included."""
+
+SOLID_START = 0.25
+"""The solid-interior term is on from this fraction of the run (:meth:`Trainer.progress`): surfaces
+first, so that the points it fills lie behind surfaces, not in early fog."""
 
 GRID_ALL_CELLS_UPDATES = 4
 """The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
@@ -129,18 +144,29 @@ class TrainingRender(nn.Module):
         fine_jitter: torch.Tensor | None = None,  # [n_rays, n_fine], with a coarse field
         background: torch.Tensor | None = None,  # [3]
         detach_semantic_weights: bool = False,
-    ) -> tuple[RayBundleOutput, RayBundleOutput | None]:
-        """(the field's render, the coarse field's render or None)."""
+        solid_offsets: torch.Tensor | None = None,  # [n_rays] distances past t_opaque, or None
+    ) -> tuple[RayBundleOutput, RayBundleOutput | None, torch.Tensor | None]:
+        """(the field's render, the coarse field's render or None, σ [k] at the solid-interior
+        points ``t_opaque + solid_offsets`` of the rays that became opaque inside the box, or None)."""
+        coarse_out = None
         if self.coarse is None:
             out = render_rays(
                 self.model, self.grid, origins, directions, t_min, t_max, self.step_size, self.n_samples, jitter,
                 background, detach_semantic_weights=detach_semantic_weights,
             )
-            return out, None
-        return render_rays_hierarchical(
-            self.coarse, self.model, origins, directions, t_min, t_max, self.hierarchical, (jitter, fine_jitter),
-            background, detach_semantic_weights=detach_semantic_weights,
-        )
+        else:
+            out, coarse_out = render_rays_hierarchical(
+                self.coarse, self.model, origins, directions, t_min, t_max, self.hierarchical, (jitter, fine_jitter),
+                background, detach_semantic_weights=detach_semantic_weights,
+            )
+        solid_sigmas = None
+        if solid_offsets is not None:  # inside the DDP forward, so that its gradient is averaged too
+            t = out.t_opaque + solid_offsets
+            points = origins + torch.where(torch.isfinite(t), t, 0.0)[:, None] * directions
+            aabb = self.model.aabb
+            keep = torch.isfinite(t) & ((points >= aabb[0]) & (points <= aabb[1])).all(-1)
+            solid_sigmas = self.model.density(points[keep])
+        return out, coarse_out, solid_sigmas
 
 
 class Trainer:
@@ -286,15 +312,21 @@ class Trainer:
         fine_jitter = None
         if self.coarse is not None:
             fine_jitter = torch.rand(self.batch_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
+        solid_offsets = None
+        if tc.solid_weight > 0 and self.progress() >= SOLID_START:
+            u = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+            solid_offsets = u * SOLID_DEPTH_STEPS * self.step_size
         r = self.rays
-        out, coarse_out = self.render(
+        out, coarse_out, solid_sigmas = self.render(
             r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, fine_jitter, self.background,
-            detach_semantic_weights=tc.detach_semantic_weights,
+            detach_semantic_weights=tc.detach_semantic_weights, solid_offsets=solid_offsets,
         )
         mse = photometric_mse(out.rgb, r.rgb[idx])
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
         loss = mse + tc.semantic_weight * ce + tc.distortion_weight * distortion
+        if solid_sigmas is not None:
+            loss = loss + tc.solid_weight * solid_interior_loss(solid_sigmas, self.step_size)
         n_evaluated = out.n_evaluated
         if coarse_out is not None:  # NeRF: the coarse render is supervised alike (logged: the fine one)
             loss = loss + photometric_mse(coarse_out.rgb, r.rgb[idx])

@@ -40,10 +40,12 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"distortion_weight": -0.01}},
         {"train": {"distortion_weight": float("nan")}},
         {"train": {"distortion_weight": True}},
+        {"train": {"solid_weight": -1.0}},
+        {"train": {"solid_weight": float("inf")}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight"):
         preset("fast", overrides)
 
 

@@ -13,6 +13,7 @@ from scenelabel.losses import (
     photometric_mse,
     semantic_cross_entropy,
     semantic_focal_loss,
+    solid_interior_loss,
     total_variation,
     total_variation_grad,
 )
@@ -118,3 +119,29 @@ def test_total_variation_grad_is_autograds(shape):
     value, grad = total_variation_grad(grid.detach())
     torch.testing.assert_close(value, total_variation(grid.detach()))
     torch.testing.assert_close(grad, grid.grad)
+
+
+def test_solid_interior_loss_matches_a_float64_loop_and_stops_at_its_target():
+    from scenelabel.losses import SOLID_SIGMA_EPS, SOLID_TAU
+
+    step = 0.02
+    sigmas = torch.tensor([0.0, 1e-3, 1.0, SOLID_TAU / step, 1e4], dtype=torch.float64, requires_grad=True)
+    loss = solid_interior_loss(sigmas, step)
+    want = sum(max(0.0, math.log(SOLID_TAU / step) - math.log(s + SOLID_SIGMA_EPS)) for s in sigmas.tolist()) / 5
+    assert abs(loss.detach().item() - want) < 1e-12
+    loss.backward()
+    # below the target the gradient on log σ is -1 / n; at and above it nothing moves
+    grad_log = (sigmas.grad * (sigmas.detach() + SOLID_SIGMA_EPS)).tolist()
+    np.testing.assert_allclose(grad_log[:3], [-0.2] * 3, rtol=1e-9)
+    assert grad_log[3] == 0.0 or abs(grad_log[3]) < 1e-9
+    assert grad_log[4] == 0.0
+    empty = solid_interior_loss(torch.zeros(0), step)
+    assert float(empty) == 0.0
+
+
+def test_solid_interior_loss_finite_at_extremes():
+    for dtype in (torch.float32, torch.float64):
+        sigmas = torch.tensor([0.0, 1e-38, 3e38], dtype=dtype, requires_grad=True)
+        loss = solid_interior_loss(sigmas, 1e-6)
+        loss.backward()
+        assert torch.isfinite(loss) and torch.isfinite(sigmas.grad).all()
