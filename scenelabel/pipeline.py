@@ -236,7 +236,6 @@ BOUNDS_RAYS = 20000
 """Training rays whose ends (where the coarse field is opaque) are the observed points."""
 
 
-
 def _trainer(
     scene: Scene, train_idx: list[int], class_map: ClassMap, aabb: np.ndarray, config: BuildConfig,
     device: torch.device, context: DistContext = DistContext(),
