@@ -244,15 +244,21 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
     )
 
 
-def run_one(spec: dict) -> dict:
+def run_in_child(target, spec: dict) -> dict:
+    """``target(spec, workdir, queue)`` in a fresh spawned process with its own temporary folder
+    (so peak memory is its own); returns the dict it puts on the queue."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     with tempfile.TemporaryDirectory() as workdir:
-        proc = ctx.Process(target=_one_build, args=(spec, workdir, queue))
+        proc = ctx.Process(target=target, args=(spec, workdir, queue))
         proc.start()
         result = queue.get()
         proc.join()
     return result
+
+
+def run_one(spec: dict) -> dict:
+    return run_in_child(_one_build, spec)
 
 
 def fmt(value, spec: str) -> str:

@@ -20,12 +20,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import platform
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -166,14 +164,9 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
 
 
 def run_one(spec: dict) -> dict:
-    ctx = mp.get_context("spawn")
-    queue = ctx.Queue()
-    with tempfile.TemporaryDirectory() as workdir:
-        proc = ctx.Process(target=_one_build, args=(spec, workdir, queue))
-        proc.start()
-        result = queue.get()
-        proc.join()
-    return result
+    from bench import run_in_child  # tools/bench.py, beside this script
+
+    return run_in_child(_one_build, spec)
 
 
 def _pct(x) -> str:
