@@ -38,9 +38,16 @@ FLOOR_NAMES = ("floor", "ground")
 CEILING_NAMES = ("ceiling",)
 DENSE_LAYER_FRACTION = 0.5
 FREE_RGB, UNKNOWN_RGB, INFLATED_RGB = (254, 254, 254), (205, 205, 205), (215, 225, 245)
-FALLBACK_PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-                    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
+
+
+def default_color(class_id: int) -> tuple[int, int, int]:
+    """scenelabel's colour of a class without one (golden-ratio hues; the same as in its renders
+    and exports), written out here so that this example needs zarr and numpy only."""
+    hue = (class_id * 0.618033988749895) % 1.0
+    x = 1 - abs(hue * 6 % 2 - 1)
+    rgb = [(1, x, 0), (x, 1, 0), (0, 1, x), (0, x, 1), (x, 0, 1), (1, 0, x)][int(hue * 6) % 6]
+    return tuple(int(40 + 200 * c) for c in rgb)
 
 
 class PlanError(Exception):
@@ -173,8 +180,7 @@ def draw_png(path_png, plan, blocked, classes, cells):
     """
     from PIL import Image, ImageDraw
 
-    palette = {c["id"]: tuple(c["color"]) if c.get("color") else FALLBACK_PALETTE[n % len(FALLBACK_PALETTE)]
-               for n, c in enumerate(classes)}
+    palette = {c["id"]: tuple(c["color"]) if c.get("color") else default_color(c["id"]) for c in classes}
     nx, ny = plan.shape
     rgb = np.empty((nx, ny, 3), np.uint8)
     rgb[plan == -2] = UNKNOWN_RGB

@@ -12,20 +12,60 @@ Public API (numpy in, numpy out)::
     write_occupancy_map("room/scenelabel", "room.zarr", 0.02)   # chunk by chunk (client=: a Dask cluster)
 """
 
-from ._version import __version__
-from .baking import BakedField
-from .batch import SceneOutcome, build_many
-from .config import BuildConfig, DataConfig, FieldConfig, OutputConfig, SamplingConfig, TrainConfig, preset
-from .errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
-from .io import load_scene
-from .map_export import write_occupancy_map
-from .maps import FREE, UNKNOWN, OccupancyMap
-from .pipeline import BuildResult, build
-from .scene import Cameras, ClassMap, Scene
-from .segmenters import Segmenter, load_segmenter, segment_scene
-from .semantic_field import PointQuery, RayQuery, RenderResult, SemanticField
-from .sfm import SfmResult, run_sfm
-from .synthetic import write_furnished_room, write_toy_scene
+from importlib import import_module
+
+from scenelabel._version import __version__
+from scenelabel.errors import CheckpointError, ConfigError, InputError, ScenelabelError, TrainingError
+
+# Public name -> the module that defines it. Imported on first use (PEP 562), so that reading a
+# map (scenelabel.maps) never imports torch, OpenCV or numba.
+_HOMES = {
+    "BakedField": "scenelabel.query.baked",
+    "SceneOutcome": "scenelabel.train.batch",
+    "build_many": "scenelabel.train.batch",
+    "BuildConfig": "scenelabel.config",
+    "DataConfig": "scenelabel.config",
+    "FieldConfig": "scenelabel.config",
+    "OutputConfig": "scenelabel.config",
+    "SamplingConfig": "scenelabel.config",
+    "TrainConfig": "scenelabel.config",
+    "preset": "scenelabel.config",
+    "load_scene": "scenelabel.data.io",
+    "write_occupancy_map": "scenelabel.query.map_writer",
+    "FREE": "scenelabel.maps",
+    "UNKNOWN": "scenelabel.maps",
+    "OccupancyMap": "scenelabel.maps",
+    "BuildResult": "scenelabel.train.pipeline",
+    "build": "scenelabel.train.pipeline",
+    "Cameras": "scenelabel.geometry.cameras",
+    "ClassMap": "scenelabel.data.scene",
+    "Scene": "scenelabel.data.scene",
+    "Segmenter": "scenelabel.data.segmenters",
+    "load_segmenter": "scenelabel.data.segmenters",
+    "segment_scene": "scenelabel.data.segmenters",
+    "PointQuery": "scenelabel.query.field",
+    "RayQuery": "scenelabel.query.field",
+    "RenderResult": "scenelabel.query.field",
+    "SemanticField": "scenelabel.query.field",
+    "SfmResult": "scenelabel.data.sfm",
+    "run_sfm": "scenelabel.data.sfm",
+    "write_furnished_room": "scenelabel.data.synthetic",
+    "write_toy_scene": "scenelabel.data.synthetic",
+}
+
+
+def __getattr__(name: str):
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'scenelabel' has no attribute {name!r}")
+    value = getattr(import_module(home), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "__version__",

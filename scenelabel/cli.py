@@ -1,4 +1,4 @@
-"""The command line: ``scenelabel build | demo | toy | export | segment | sfm``.
+"""The command line: ``scenelabel build | demo | toy | export | segment | sfm | upgrade-checkpoint``.
 
 Errors a user can cause print one line (``scenelabel: error: ...``) and exit with status 2;
 they never show a traceback.
@@ -12,9 +12,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from ._version import __version__
-from .config import PRESETS, preset
-from .errors import InputError, ScenelabelError, TrainingInterrupted
+from scenelabel._version import __version__
+from scenelabel.config import PRESETS, preset
+from scenelabel.errors import InputError, ScenelabelError, TrainingInterrupted
 
 __all__ = ["main"]
 
@@ -87,7 +87,7 @@ def _print_metrics(metrics: dict, out_dir: Path) -> None:
 
 def _segment(scene: str, spec: str, overwrite: bool, device: str | None, quiet: bool) -> None:
     """Write labels/ and classes.json for ``scene`` with the segmenter ``spec``, and say what was found."""
-    from .segmenters import load_segmenter, segment_scene
+    from scenelabel.data.segmenters import load_segmenter, segment_scene
 
     segmenter = load_segmenter(spec, device=device)
     result = segment_scene(scene, segmenter, overwrite=overwrite, progress=not quiet)
@@ -104,7 +104,7 @@ def _cmd_segment(args: argparse.Namespace) -> None:
 
 
 def _cmd_sfm(args: argparse.Namespace) -> None:
-    from .sfm import run_sfm
+    from scenelabel.data.sfm import run_sfm
 
     result = run_sfm(
         args.scene,
@@ -128,7 +128,7 @@ def _build_many(args: argparse.Namespace) -> int:
     """``build`` of several scenes (or of one on a Dask cluster): independent jobs and a summary table."""
     import contextlib
 
-    from .batch import SUMMARY_MD, build_many, summary_table
+    from scenelabel.train.batch import SUMMARY_MD, build_many, summary_table
 
     if args.resume or args.segmenter:
         raise ScenelabelError("--resume and --segmenter take one scene folder; run `scenelabel build SCENE` per scene")
@@ -144,7 +144,7 @@ def _build_many(args: argparse.Namespace) -> int:
 
 
 def _cmd_build(args: argparse.Namespace) -> int | None:
-    from .pipeline import build, resume_config
+    from scenelabel.train.pipeline import build, resume_config
 
     if len(args.scene) > 1 or args.workers is not None or args.scheduler:
         return _build_many(args)
@@ -161,7 +161,7 @@ def _cmd_build(args: argparse.Namespace) -> int | None:
 
 
 def _cmd_toy(args: argparse.Namespace) -> None:
-    from .synthetic import write_furnished_room, write_toy_scene
+    from scenelabel.data.synthetic import write_furnished_room, write_toy_scene
 
     writer = write_furnished_room if args.room else write_toy_scene
     path = writer(args.path)
@@ -170,8 +170,8 @@ def _cmd_toy(args: argparse.Namespace) -> None:
 
 def _cmd_demo(args: argparse.Namespace) -> None:
     """Generate the toy two-box scene, build it, print held-out metrics, write renders and map."""
-    from .pipeline import build
-    from .synthetic import write_toy_scene
+    from scenelabel.data.synthetic import write_toy_scene
+    from scenelabel.train.pipeline import build
 
     scene_dir = Path(args.path)
     write_toy_scene(scene_dir)
@@ -193,12 +193,12 @@ def _is_build(source: Path) -> bool:
 
 def _load_map(source: Path, voxel_size: float | None):
     """The occupancy map of a build folder (evaluated at ``voxel_size``) or of a map .zarr folder."""
-    from .maps import OccupancyMap
+    from scenelabel.maps import OccupancyMap
 
     is_build = _is_build(source)
     is_zarr = source.is_dir() and ((source / "zarr.json").is_file() or (source / ".zgroup").is_file())
     if is_build:
-        from .semantic_field import SemanticField
+        from scenelabel.query.field import SemanticField
 
         return SemanticField.load(source).occupancy_map(voxel_size)
     if is_zarr:
@@ -228,12 +228,12 @@ def _dask_client(stack, workers: int | None, scheduler: str | None):
 
 def _export_chunked(args: argparse.Namespace, source: Path, out: Path) -> None:
     """``export BUILD OUT.zarr``: the map evaluated chunk by chunk into the store (bounded memory),
-    in this process or on a Dask cluster (:func:`scenelabel.map_export.write_occupancy_map`)."""
+    in this process or on a Dask cluster (:func:`scenelabel.query.map_writer.write_occupancy_map`)."""
     import contextlib
 
     import zarr
 
-    from .map_export import write_occupancy_map
+    from scenelabel.query.map_writer import write_occupancy_map
 
     with contextlib.ExitStack() as stack:
         client = _dask_client(stack, args.workers, args.scheduler)
@@ -245,7 +245,7 @@ def _export_chunked(args: argparse.Namespace, source: Path, out: Path) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
-    from . import exports
+    from scenelabel.maps import exports
 
     source, out = Path(args.source), Path(args.out)
     if args.format == "zarr" and _is_build(source):
@@ -269,6 +269,16 @@ def _cmd_export(args: argparse.Namespace) -> None:
     else:
         paths = exports.write_nav2(occ, out, args.z_min, args.z_max, args.robot_height)
         print("wrote " + ", ".join(str(p) for p in paths.values()))
+
+
+def _cmd_upgrade_checkpoint(args: argparse.Namespace) -> None:
+    from scenelabel.fields.checkpoint import FORMAT_VERSION, upgrade_checkpoint
+
+    path, converted = upgrade_checkpoint(args.path)
+    if converted:
+        print(f"converted {path} to checkpoint format {FORMAT_VERSION}")
+    else:
+        print(f"{path} is in checkpoint format {FORMAT_VERSION} already; nothing to do")
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -383,6 +393,18 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--undistort", action="store_true", help="also write pinhole-undistorted images to sfm/undistorted/")
     p.add_argument("--force", action="store_true", help="recompute even when sparse/0/ exists")
     p.set_defaults(func=_cmd_sfm)
+
+    p = sub.add_parser(
+        "upgrade-checkpoint",
+        help="convert a checkpoint of an older scenelabel (format 1, pickled) to the current format, in place; "
+        "run it only on checkpoints you trust",
+        description="Format-1 checkpoints are pickles, which can run any code when read, so scenelabel no longer "
+        "reads them. This command reads one the old way (torch.load with weights_only=False) because you ask it "
+        "to: run it only on checkpoints you made or trust. The file is rewritten in the current format (tensors "
+        "and JSON, read without pickle) atomically; a current checkpoint is left as it is.",
+    )
+    p.add_argument("path", metavar="PATH", help="build folder (with checkpoint.pt) or checkpoint file")
+    p.set_defaults(func=_cmd_upgrade_checkpoint)
     return parser
 
 

@@ -10,7 +10,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from .errors import ConfigError
+from scenelabel.errors import ConfigError
 
 __all__ = [
     "DataConfig",
@@ -113,6 +113,10 @@ class SamplingConfig:
                 raise ConfigError(f"sampling.{name} must be an integer >= 1, got {value!r}")
 
 
+RANDOM_BACKGROUND = "random"
+"""``train.background``: a random colour per training ray and step (renders and queries use white)."""
+
+
 @dataclass
 class TrainConfig:
     """The optimisation loop."""
@@ -138,12 +142,21 @@ class TrainConfig:
     time_budget: float | None = None  # seconds; training stops early when spent
     seed: int = 0
     holdout: int = 8  # every holdout-th view is held out for evaluation; 0 = train on all
-    background: tuple[float, float, float] | None = (1.0, 1.0, 1.0)  # colour behind the scene; None = black
+    # colour behind the scene (RGB in [0, 1]); None: black; "random": a new random colour per ray and
+    # step in training, so that a ray left partly transparent never matches its pixel (renders: white)
+    background: tuple[float, float, float] | str | None = (1.0, 1.0, 1.0)
     checkpoint_every: int = 500  # steps between checkpoints
     log_every: int = 25  # steps between progress-bar updates
 
     def __post_init__(self) -> None:
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
+        bg = self.background
+        if isinstance(bg, str):
+            _check_choice("train.background", bg, (RANDOM_BACKGROUND,))
+        elif bg is not None and not (
+            len(bg) == 3 and all(isinstance(c, (int, float)) and not isinstance(c, bool) and 0 <= c <= 1 for c in bg)
+        ):
+            raise ConfigError(f"train.background must be 3 numbers in [0, 1], \"random\" or null, got {bg!r}")
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
         for name in ("distortion_weight", "tv_weight", "solid_weight"):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from skimage.metrics import structural_similarity
 
-from .errors import InputError
+from scenelabel.errors import InputError
 
 __all__ = [
     "BOX_DISTANCE_CHUNK_PAIRS",
@@ -268,7 +268,7 @@ def pose_centre_errors(c2w_true: np.ndarray, c2w_est: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ 3D metrics against exact geometry
-# The synthetic scenes are labelled axis-aligned boxes with exact depth (scenelabel.synthetic);
+# The synthetic scenes are labelled axis-aligned boxes with exact depth (scenelabel.data.synthetic);
 # these metrics compare predicted depth, occupancy and surfaces with that exact geometry.
 
 
@@ -317,7 +317,7 @@ def _points3(x: np.ndarray, field: str) -> np.ndarray:
 
 def boxes_lo_hi(boxes) -> tuple[np.ndarray, np.ndarray]:
     """(lo [m, 3], hi [m, 3]) float64 corners of a sequence of objects with ``.lo`` / ``.hi``
-    (e.g. scenelabel.synthetic.Box)."""
+    (e.g. scenelabel.data.synthetic.Box)."""
     boxes = list(boxes)
     lo = np.array([b.lo for b in boxes], np.float64).reshape(-1, 3)
     hi = np.array([b.hi for b in boxes], np.float64).reshape(-1, 3)

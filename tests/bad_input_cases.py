@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from scenelabel.synthetic import write_toy_scene
+from scenelabel.data.synthetic import write_toy_scene
 
 
 @dataclass
@@ -134,6 +134,14 @@ def _incompatible_checkpoint(tmp):
     return ["export", str(build_dir), str(tmp / "map.zarr")]
 
 
+def _pickled_checkpoint(tmp):
+    """A build folder from before checkpoints were read without pickle (format version 1)."""
+    build_dir = tmp / "old_build"
+    build_dir.mkdir()
+    torch.save({"format": "scenelabel.checkpoint", "format_version": 1, "scenelabel_version": "0.1.0"}, build_dir / "checkpoint.pt")
+    return ["export", str(build_dir), str(tmp / "map.zarr")]
+
+
 def _output_not_writable(tmp):
     scene = toy(tmp)
     blocker = tmp / "a_file"
@@ -202,6 +210,7 @@ CASES = [
     Case("fewer than 2 views", _one_view, ("2",)),
     Case("unknown config key", _unknown_config_key, ("stepz",)),
     Case("checkpoint from an incompatible version", _incompatible_checkpoint, ("checkpoint.pt", "not supported")),
+    Case("pickled checkpoint (format version 1)", _pickled_checkpoint, ("checkpoint.pt", "upgrade-checkpoint")),
     Case("output path not writable", _output_not_writable, ("a_file",)),
     Case("photos only, too few register in SfM", _photos_that_do_not_register, ("registered only 0 of 3", "matcher=")),
     Case("no poses and a single photo", _no_poses_one_photo, ("no poses found", "at least 2 photos")),

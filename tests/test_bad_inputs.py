@@ -8,7 +8,6 @@ import subprocess
 import sys
 
 import pytest
-
 from bad_input_cases import CASES
 
 

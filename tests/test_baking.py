@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 import torch
+from threads import assert_concurrent_calls_match
 
 from scenelabel import FREE, UNKNOWN, BakedField, InputError, SemanticField
-from scenelabel.baking import MAX_BAKE_BYTES, composite_baked_rays, trilinear
 from scenelabel.maps import uint8_from_unit
-from scenelabel.rendering import class_probs_from_weights, depth_from_weights, weights_from_density
-from scenelabel.semantic_field import _softmax64
-from threads import assert_concurrent_calls_match
+from scenelabel.query.answers import softmax64
+from scenelabel.query.baked import MAX_BAKE_BYTES, composite_baked_rays, trilinear
+from scenelabel.render.volume import class_probs_from_weights, depth_from_weights, weights_from_density
 
 
 def naive_trilinear(values, corner, spacing, p):
@@ -55,7 +55,7 @@ def naive_ray(lattice, ray, step, scores, min_trans):
     if w_sum <= 1e-10:
         return far, w_sum, np.full(len(acc), 1.0 / len(acc))
     depth = min(max(wt_sum / w_sum, min(t_lo, far)), far)
-    return depth, w_sum, _softmax64(acc) if scores else acc / w_sum
+    return depth, w_sum, softmax64(acc) if scores else acc / w_sum
 
 
 def random_lattice(rng, shape=(5, 4, 6), n_classes=4, scores=True):
@@ -63,7 +63,7 @@ def random_lattice(rng, shape=(5, 4, 6), n_classes=4, scores=True):
     logits, or with scores=False their softmax as uint8 codes (what a bake stores)."""
     density = (rng.exponential(3.0, shape) * (rng.uniform(size=shape) > 0.4)).astype(np.float32)
     logits = rng.normal(0, 3, (*shape, n_classes))
-    class_values = logits.astype(np.float32) if scores else uint8_from_unit(_softmax64(logits))
+    class_values = logits.astype(np.float32) if scores else uint8_from_unit(softmax64(logits))
     return density, class_values, np.array([-1.0, 0.5, 2.0]), 0.25
 
 
@@ -107,7 +107,7 @@ def test_points_match_naive_loop(scores):
             assert label == UNKNOWN and sigma == 0 and np.all(probs == 0)
             continue
         v = naive_trilinear(class_values, corner, spacing, p)
-        want = _softmax64(v) if scores else v / v.sum()
+        want = softmax64(v) if scores else v / v.sum()
         assert sigma == pytest.approx(max(naive_trilinear(density[..., None], corner, spacing, p)[0], 0.0), rel=1e-6, abs=1e-9)
         np.testing.assert_allclose(probs, want, atol=1e-9)
         occupied = 1 - math.exp(-sigma * 0.1) >= 0.5
@@ -130,7 +130,7 @@ def test_rays_match_naive_loop(scores, min_trans):
 
 
 def test_rays_match_the_renderers_maths():
-    """Same samples through scenelabel.rendering (weights, depth, eq. 7) in float64: the kernel
+    """Same samples through scenelabel.render.volume (weights, depth, eq. 7) in float64: the kernel
     composites as the field's renderer does, up to its early stop (the renderer's eq. 7 takes
     logits: the log of the lattice's normalised probabilities)."""
     rng = np.random.default_rng(2)

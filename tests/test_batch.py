@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from scenelabel import SceneOutcome, build_many, preset, write_toy_scene
-from scenelabel.batch import LOG_NAME, SUMMARY_JSON, SUMMARY_MD, _ProgressLines, out_dirs_for, summary_table
 from scenelabel.cli import main
 from scenelabel.config import config_to_dict
 from scenelabel.errors import ConfigError, InputError
+from scenelabel.train.batch import LOG_NAME, SUMMARY_JSON, SUMMARY_MD, _ProgressLines, out_dirs_for, summary_table
 
 STEPS = 6
 TINY = {  # a few seconds per scene on a busy 2-core CPU

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scenelabel import FREE, OccupancyMap
-from scenelabel.synthetic import write_toy_scene
+from scenelabel.data.synthetic import write_toy_scene
 
 
 def run_cli(*args, cwd=None):

@@ -42,11 +42,20 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"distortion_weight": True}},
         {"train": {"solid_weight": -1.0}},
         {"train": {"solid_weight": float("inf")}},
+        {"train": {"background": "blue"}},
+        {"train": {"background": [1.0, 2.0, 0.0]}},
+        {"train": {"background": [1.0, 1.0]}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|background"):
         preset("fast", overrides)
+
+
+def test_a_background_is_a_colour_random_or_black():
+    assert preset("fast", {"train": {"background": "random"}}).train.background == "random"
+    assert preset("fast", {"train": {"background": [0, 0.5, 1]}}).train.background == (0, 0.5, 1)
+    assert preset("fast", {"train": {"background": None}}).train.background is None
 
 
 @pytest.mark.parametrize("downscale", [0, -2, 1.5, True, "2", None])

@@ -1,4 +1,4 @@
-"""Data-parallel training (scenelabel.distributed, Trainer with DistributedDataParallel) on CPU, gloo."""
+"""Data-parallel training (scenelabel.train.distributed, Trainer with DistributedDataParallel) on CPU, gloo."""
 
 import json
 import os
@@ -10,9 +10,9 @@ import pytest
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
-
 from conftest import TOY_BUILD_STEPS
-from scenelabel.distributed import DistContext, backend_for, init_from_env, leave
+
+from scenelabel.train.distributed import DistContext, backend_for, init_from_env, leave
 
 MIOU_TOLERANCE = 0.02
 """2 processes x 512 rays vs 1 process x 1024 rays per step, same steps: held-out mIoU within this."""
@@ -29,8 +29,8 @@ def _flat_state(trainer) -> torch.Tensor:
 def _lockstep_worker(rank: int, world_size: int, init_file: str, scene_dir: str, steps: int, out: str) -> None:
     """One rank: train ``steps`` steps and compare parameters and grid with the other rank after each."""
     from scenelabel.config import preset
-    from scenelabel.io import load_scene
-    from scenelabel.pipeline import prepare_training
+    from scenelabel.data.io import load_scene
+    from scenelabel.train.pipeline import prepare_training
 
     torch.set_num_threads(1)
     dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world_size)

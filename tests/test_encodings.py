@@ -9,7 +9,7 @@ import torch
 
 from scenelabel.fields.encodings import DenseGrid, trilinear_from_grid
 from scenelabel.fields.model import dense_grid_shape
-from scenelabel.warps import BoxWarp, ForwardWarp
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp
 
 SHAPES = [(2, 2, 2, 1), (5, 4, 3, 2), (9, 7, 6, 5)]
 

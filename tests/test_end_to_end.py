@@ -9,8 +9,8 @@ import zarr
 from conftest import TOY_BUILD_STEPS
 
 from scenelabel import FREE, UNKNOWN, OccupancyMap, SemanticField, build, preset, write_toy_scene
+from scenelabel.data.synthetic import TOY_BOXES
 from scenelabel.maps import validate_attributes
-from scenelabel.synthetic import TOY_BOXES
 
 pytestmark = pytest.mark.slow
 

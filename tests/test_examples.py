@@ -2,8 +2,8 @@
 
 The toy build is the session fixture ``toy_build`` of tests/conftest.py (one training run, shared
 with test_end_to_end.py). Outputs are checked against the toy scene's exact geometry
-(scenelabel.synthetic.TOY_BOXES), its ground-truth depth and labels, and the library's own
-floor plan (scenelabel.exports.floor_plan).
+(scenelabel.data.synthetic.TOY_BOXES), its ground-truth depth and labels, and the library's own
+floor plan (scenelabel.maps.exports.floor_plan).
 """
 
 import ast
@@ -17,8 +17,8 @@ import pytest
 from PIL import Image
 
 from scenelabel import FREE, UNKNOWN, OccupancyMap
-from scenelabel.exports import floor_plan
-from scenelabel.synthetic import TOY_BOXES, TOY_CLASSES
+from scenelabel.data.synthetic import TOY_BOXES, TOY_CLASSES
+from scenelabel.maps.exports import floor_plan
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 TOY_NAMES = {c.id: c.name for c in TOY_CLASSES}

@@ -12,9 +12,9 @@ import pytest
 from PIL import Image
 
 from scenelabel import FREE, UNKNOWN, InputError, OccupancyMap
-from scenelabel.exports import (
-    FALLBACK_PALETTE,
+from scenelabel.maps.exports import (
     class_palette,
+    default_color,
     floor_plan,
     floor_plan_from_grid,
     height_band,
@@ -73,7 +73,7 @@ def test_point_cloud_positions_colours_labels_read_back(tmp_path):
     np.testing.assert_allclose(by_label[3][0], centre(3, 2, 1), atol=1e-12)
     np.testing.assert_allclose(by_label[5][0], centre(1, 2, 0), atol=1e-12)
     assert tuple(by_label[3][1]) == COLORS[3]
-    assert tuple(by_label[5][1]) == FALLBACK_PALETTE[2]  # chair: third class by id, no colour
+    assert tuple(by_label[5][1]) == default_color(5)  # chair (id 5): no colour of its own
     np.testing.assert_allclose(pcd.point.occupancy.numpy().ravel(), 0.9, rtol=1e-6)
     # a plain (legacy) reader sees coloured points
     legacy = o3d.io.read_point_cloud(str(path))
@@ -105,7 +105,7 @@ def test_point_cloud_of_an_empty_map_and_bad_suffix(tmp_path):
 
 
 def test_palette_prefers_class_colours():
-    assert class_palette(CLASSES, COLORS) == {1: COLORS[1], 3: COLORS[3], 5: FALLBACK_PALETTE[2]}
+    assert class_palette(CLASSES, COLORS) == {1: COLORS[1], 3: COLORS[3], 5: default_color(5)}
 
 
 def test_write_ply_rejects_bad_faces(tmp_path):
@@ -285,7 +285,7 @@ def test_nav2_files_origin_and_obstacle_pixel(tmp_path):
     labels = np.asarray(Image.open(paths["labels"]).convert("RGB"))
     assert labels.shape == (10, 12, 3)
     assert tuple(labels[pixel_of(*centre(3, 4, 0)[:2])]) == COLORS[3]
-    assert tuple(labels[pixel_of(*chair_xy)]) == FALLBACK_PALETTE[2]
+    assert tuple(labels[pixel_of(*chair_xy)]) == default_color(5)
     assert tuple(labels[pixel_of(*centre(11, 0, 0)[:2])]) == (205, 205, 205)
     assert tuple(labels[pixel_of(*(chair_xy - [VS, 0]))]) == (254, 254, 254)
 

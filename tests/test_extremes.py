@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from scenelabel import build, preset, write_toy_scene
-from scenelabel.io import load_scene
+from scenelabel.data.io import load_scene
 
 pytestmark = pytest.mark.slow
 

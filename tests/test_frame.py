@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from scenelabel.errors import InputError
-from scenelabel.frame import MIN_BOUNDING_POINTS, POINTS_PAD, SceneFrame, aabb_from_cameras, aabb_from_points
-from scenelabel.scene import Cameras
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.frame import MIN_BOUNDING_POINTS, POINTS_PAD, SceneFrame, aabb_from_cameras, aabb_from_points
 
 
 def looking_down(height):
@@ -36,8 +36,8 @@ def test_scene_frame_is_an_isotropic_similarity():
     frame = SceneFrame.from_aabb(np.array([[-2.0, 0, 0], [2.0, 1, 1]]))
     assert frame.scale == 0.5
     pts = np.random.default_rng(0).normal(size=(10, 3))
-    np.testing.assert_allclose(frame.to_world(frame.to_internal(pts)), pts)
-    np.testing.assert_allclose(frame.to_internal(np.array([[2.0, 1, 1]])), [[1.0, 0.25, 0.25]])
+    np.testing.assert_allclose(frame.to_world(frame.to_normalised(pts)), pts)
+    np.testing.assert_allclose(frame.to_normalised(np.array([[2.0, 1, 1]])), [[1.0, 0.25, 0.25]])
     again = SceneFrame.from_dict(frame.to_dict())
     np.testing.assert_array_equal(again.centre, frame.centre)
     assert again.scale == frame.scale

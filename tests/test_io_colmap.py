@@ -12,10 +12,10 @@ import numpy as np
 import pycolmap
 import pytest
 from PIL import Image
+from shared_data import DATA, read_points3d_bin
 
-from scenelabel.errors import InputError
-from scenelabel.io import load_colmap, load_scene
-from scenelabel.io.colmap import (
+from scenelabel.data.io import load_colmap, load_scene
+from scenelabel.data.io.colmap import (
     FAR_MARGIN,
     FAR_PERCENTILE,
     NEAR_MARGIN,
@@ -24,9 +24,9 @@ from scenelabel.io.colmap import (
     find_sparse_dir,
     read_colmap_cameras,
 )
-from scenelabel.io.llff import read_poses_bounds
+from scenelabel.data.io.llff import read_poses_bounds
+from scenelabel.errors import InputError
 
-from shared_data import DATA, read_points3d_bin
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
 

@@ -1,4 +1,4 @@
-"""Shared reading helpers (scenelabel.io.common) and the load_scene dispatcher."""
+"""Shared reading helpers (scenelabel.data.io.common) and the load_scene dispatcher."""
 
 from __future__ import annotations
 
@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scenelabel.errors import InputError
-from scenelabel.io import load_scene
-from scenelabel.io.common import (
+from scenelabel.data.io import load_scene
+from scenelabel.data.io.common import (
     check_downscale,
     check_pose,
     load_json,
@@ -25,6 +24,7 @@ from scenelabel.io.common import (
     resolve_image_path,
     validate_json,
 )
+from scenelabel.errors import InputError
 
 
 def _rotation_z(angle: float) -> np.ndarray:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scenelabel import ClassMap, InputError, load_scene, write_toy_scene
-from scenelabel.io.label_map import map_ids
+from scenelabel.data.io.label_map import map_ids
 
 BOX = 10  # target id of "box": both toy boxes (source ids 3 and 7)
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-
-from scenelabel.errors import InputError
-from scenelabel.io import load_scene
-from scenelabel.io.llff import choose_image_folder, llff_to_opencv, load_llff, read_poses_bounds
-
 from shared_data import DATA, read_points3d_bin
+
+from scenelabel.data.io import load_scene
+from scenelabel.data.io.llff import choose_image_folder, llff_to_opencv, load_llff, read_poses_bounds
+from scenelabel.errors import InputError
+
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
 

@@ -11,12 +11,13 @@ from typing import Callable
 import numpy as np
 import pytest
 from PIL import Image
-
-from scenelabel.errors import InputError
-from scenelabel.io import load_scene
-from scenelabel.io.transforms_json import OPENGL_TO_OPENCV, load_transforms, opengl_to_opencv
-
 from shared_data import DATA
+
+from scenelabel.data.io import load_scene
+from scenelabel.data.io.transforms_json import load_transforms
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import OPENGL_TO_OPENCV, opengl_to_opencv
+
 FOX = DATA / "instant_ngp_fox"
 
 WIDTH, HEIGHT = 8, 6

@@ -2,13 +2,11 @@
 
 import math
 
+import numpy as np
+import pytest
 import torch
 
-import pytest
-
-import numpy as np
-
-from scenelabel.losses import (
+from scenelabel.train.losses import (
     class_balance_weights,
     photometric_mse,
     semantic_cross_entropy,
@@ -122,7 +120,7 @@ def test_total_variation_grad_is_autograds(shape):
 
 
 def test_solid_interior_loss_matches_a_float64_loop_and_stops_at_its_target():
-    from scenelabel.losses import SOLID_SIGMA_EPS, SOLID_TAU
+    from scenelabel.train.losses import SOLID_SIGMA_EPS, SOLID_TAU
 
     step = 0.02
     sigmas = torch.tensor([0.0, 1e-3, 1.0, SOLID_TAU / step, 1e4], dtype=torch.float64, requires_grad=True)

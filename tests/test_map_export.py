@@ -1,4 +1,4 @@
-"""Chunked map export (scenelabel.map_export): the store equals the in-memory map's, in this
+"""Chunked map export (scenelabel.query.map_writer): the store equals the in-memory map's, in this
 process and on a 2-worker Dask cluster; it validates, reads back, and a failed task leaves no
 half map.
 
@@ -13,8 +13,9 @@ import pytest
 import zarr
 
 import scenelabel
-from scenelabel import FREE, UNKNOWN, InputError, OccupancyMap, SemanticField, write_occupancy_map
+from scenelabel import FREE, UNKNOWN, InputError, OccupancyMap, write_occupancy_map
 from scenelabel.maps import iter_chunks, pool_block, unit_from_uint8, validate_attributes
+from scenelabel.query import mapping
 
 CROP = np.array([[-1.0, -1.3, -0.15], [1.0, 1.0, 0.3]])  # cuts the field: the floor's edges and the box tops lie outside
 
@@ -140,16 +141,16 @@ class _Broken(RuntimeError):
 
 def test_failed_chunk_leaves_no_half_map(toy_build, tmp_path, monkeypatch):
     field = toy_build.field
-    original = SemanticField.evaluate_map_block
+    original = mapping.evaluate_map_block
     calls = {"n": 0}
 
-    def flaky(self, origin, voxel_size, block):
+    def flaky(field, origin, voxel_size, block):
         calls["n"] += 1
         if calls["n"] == 3:
             raise _Broken("evaluation failed")
-        return original(self, origin, voxel_size, block)
+        return original(field, origin, voxel_size, block)
 
-    monkeypatch.setattr(SemanticField, "evaluate_map_block", flaky)
+    monkeypatch.setattr(mapping, "evaluate_map_block", flaky)
     with pytest.raises(_Broken):
         write_occupancy_map(field, tmp_path / "new.zarr", 0.15, chunks=(8, 8, 8))
     assert calls["n"] == 3 and list(tmp_path.iterdir()) == []  # nothing at the path, no temp folder
@@ -181,7 +182,7 @@ def test_bad_arguments(toy_build, tmp_path):
 def test_a_task_refuses_a_rewritten_checkpoint(toy_build):
     """Every chunk of a map comes from one field: a task whose checkpoint changed since the
     export began fails rather than mixing two fields."""
-    from scenelabel.map_export import _checkpoint, _field
+    from scenelabel.query.map_writer import _checkpoint, _field
 
     now = _checkpoint(toy_build.out_dir)
     assert now.path.endswith("checkpoint.pt") and _field(now) is _field(now)  # loaded once, then cached
@@ -202,7 +203,7 @@ def test_two_worker_cluster_writes_the_single_process_map(toy_build, client, tmp
     assert_same_store(cluster_map, local_map)
     assert (zarr.open_group(str(local_map), mode="r")["label"][...] == UNKNOWN).any()
     # both worker processes took part: each holds the field it loaded from the checkpoint
-    cached = client.run(lambda: [key[0] for key in sys.modules["scenelabel.map_export"]._FIELD_CACHE])
+    cached = client.run(lambda: [key[0] for key in sys.modules["scenelabel.query.map_writer"]._FIELD_CACHE])
     checkpoint = str((toy_build.out_dir / "checkpoint.pt").resolve())
     assert len(cached) == 2 and all(paths == [checkpoint] for paths in cached.values())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cluster.zarr", "local.zarr"]
@@ -210,23 +211,23 @@ def test_two_worker_cluster_writes_the_single_process_map(toy_build, client, tmp
 
 def _break_evaluation(broken_voxel_size):
     """On a worker: evaluating a map at ``broken_voxel_size`` raises (other sizes still work)."""
-    from scenelabel import SemanticField
+    from scenelabel.query import mapping
 
-    original = SemanticField.evaluate_map_block
+    original = mapping.evaluate_map_block
 
-    def flaky(self, origin, voxel_size, block):
+    def flaky(field, origin, voxel_size, block):
         if voxel_size == broken_voxel_size and block[0].start > 0:
             raise RuntimeError("worker evaluation failed")
-        return original(self, origin, voxel_size, block)
+        return original(field, origin, voxel_size, block)
 
     flaky.original = original
-    SemanticField.evaluate_map_block = flaky
+    mapping.evaluate_map_block = flaky
 
 
 def _restore_evaluation():
-    from scenelabel import SemanticField
+    from scenelabel.query import mapping
 
-    SemanticField.evaluate_map_block = getattr(SemanticField.evaluate_map_block, "original", SemanticField.evaluate_map_block)
+    mapping.evaluate_map_block = getattr(mapping.evaluate_map_block, "original", mapping.evaluate_map_block)
 
 
 @pytest.mark.slow

@@ -18,12 +18,12 @@ from scenelabel.maps import (
     UNKNOWN,
     OccupancyMap,
     first_voxel_hits,
-    transmittance_crossings,
-    uint8_from_unit,
     index_from_world,
-    ray_box_distances,
     iter_chunks,
     lattice,
+    ray_box_distances,
+    transmittance_crossings,
+    uint8_from_unit,
     validate_attributes,
     voxel_centers,
     world_from_index,
@@ -466,7 +466,7 @@ def test_crash_without_cleanup_leaves_no_complete_looking_map(tmp_path, monkeypa
     previous.to_zarr(target)
     with monkeypatch.context() as mp:
         _crash_on_second_array_write(mp)
-        mp.setattr(maps, "_remove", lambda path: None)
+        mp.setattr("scenelabel.maps.zarr_io._remove", lambda path: None)
         with pytest.raises(_Crash):
             make_map(frame_id="newer").to_zarr(target)
 

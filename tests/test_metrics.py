@@ -7,7 +7,7 @@ import pytest
 from skimage.metrics import structural_similarity
 
 from scenelabel.errors import InputError
-from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim, boundary_f1, label_boundaries
+from scenelabel.metrics import boundary_f1, confusion_matrix, depth_error, label_boundaries, miou, psnr, ssim
 
 
 def naive_confusion(pred, target, class_ids, ignore):
@@ -199,7 +199,7 @@ def test_pose_errors_are_zero_up_to_a_similarity_and_see_a_known_perturbation():
 
 from fractions import Fraction  # noqa: E402
 
-from scenelabel.metrics import (  # noqa: E402
+from scenelabel.metrics import (
     box_surface_distance,
     boxes_lo_hi,
     label_accuracy,
@@ -281,7 +281,7 @@ def test_box_surface_distance_hand_values():
 
 
 def test_boxes_lo_hi_reads_box_objects():
-    from scenelabel.synthetic import TOY_BOXES
+    from scenelabel.data.synthetic import TOY_BOXES
 
     lo, hi = boxes_lo_hi(TOY_BOXES)
     assert lo.shape == hi.shape == (len(TOY_BOXES), 3)
@@ -404,7 +404,7 @@ def test_probe_points_surface_free_and_skipped_rays():
 
 
 def test_probe_points_are_free_and_occupied_in_an_exact_scene():
-    from scenelabel.synthetic import Box, cast_rays
+    from scenelabel.data.synthetic import Box, cast_rays
 
     boxes = [Box((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1), Box((2.0, -1.0, -1.0), (2.5, 2.0, 2.0), 2)]
     rng = np.random.default_rng(14)

@@ -9,14 +9,14 @@ import pytest
 import torch
 
 from scenelabel import SemanticField, build, preset, write_toy_scene
+from scenelabel.data.io import load_scene
+from scenelabel.data.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.errors import InputError
-from scenelabel.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
-from scenelabel.io import load_scene
-from scenelabel.pipeline import choose_warp, split_views
-from scenelabel.sampling import cell_steps
-from scenelabel.scene import Cameras
-from scenelabel.synthetic import look_at, toy_scene_geometry, write_scene
-from scenelabel.warps import BoxWarp, ForwardWarp, warp_from_dict
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp, warp_from_dict
+from scenelabel.render.sampling import cell_steps
+from scenelabel.train.pipeline import choose_warp, split_views
 
 
 def test_every_eighth_view_held_out():
@@ -65,7 +65,7 @@ def _forward_c2ws_opengl(n=5):
 def _frame_and_box(cameras, explicit=None):
     aabb, _ = aabb_from_cameras(cameras, explicit)
     frame = SceneFrame.from_aabb(aabb)
-    return frame, torch.as_tensor(frame.to_internal(aabb), dtype=torch.float32)
+    return frame, torch.as_tensor(frame.to_normalised(aabb), dtype=torch.float32)
 
 
 def test_build_without_labels_is_photometric_only(small_toy, tmp_path):
@@ -127,7 +127,7 @@ def test_choose_warp_on_a_forward_facing_rig():
             torch.testing.assert_close(getattr(again, key), getattr(warp, key), atol=0, rtol=1e-6)
         # the warp holds every training frustum (normalised frame)
         near, far = near_far_or_fallback(cams)
-        pts_n = torch.as_tensor(frame.to_internal(frustum_points(cams, near, far)), dtype=torch.float32)
+        pts_n = torch.as_tensor(frame.to_normalised(frustum_points(cams, near, far)), dtype=torch.float32)
         assert bool((warp(pts_n).abs() <= 1.0).all())
         # near / far scaled into the normalised frame
         assert warp.to_dict()["near"] < 1.5 * frame.scale and warp.to_dict()["far"] > 5.0 * frame.scale * 0.99
@@ -178,8 +178,8 @@ def test_forward_warp_build_loads_and_answers(forward_scene, tmp_path):
 def test_a_room_without_near_far_or_aabb_is_bounded_by_what_its_cameras_see(tmp_path):
     """A nerfstudio-style room (no near/far, no aabb): the coarse fit bounds the room itself, not
     the camera frusta out to a guessed far plane (a box many times the room's volume)."""
-    from scenelabel.pipeline import prepare_training
-    from scenelabel.synthetic import furnished_room_geometry, room_cameras
+    from scenelabel.data.synthetic import furnished_room_geometry, room_cameras
+    from scenelabel.train.pipeline import prepare_training
 
     room = furnished_room_geometry()
     path = write_scene(tmp_path / "room", room, room_cameras(24, seed=0), 64, 48, bounds_in_file=False)

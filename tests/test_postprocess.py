@@ -5,7 +5,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from scenelabel.errors import InputError
-from scenelabel.postprocess import (
+from scenelabel.query.postprocess import (
     IGNORE_COLOR,
     NO_CLASS_COLOR,
     colorize_labels,

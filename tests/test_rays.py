@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from scenelabel.errors import InputError
-from scenelabel.rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
-from scenelabel.scene import Cameras
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
 
 
 def test_pixel_grid_centres_row_major():

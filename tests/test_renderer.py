@@ -6,8 +6,15 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from scenelabel.renderer import ray_intervals, render_rays, render_rays_early_stop, render_rays_hierarchical
-from scenelabel.warps import BoxWarp
+from scenelabel.geometry.warps import BoxWarp
+from scenelabel.render.marcher import (
+    CompositeOptions,
+    Marching,
+    ray_intervals,
+    render_rays,
+    render_rays_early_stop,
+    render_rays_hierarchical,
+)
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 N_CLASSES = 3
@@ -83,7 +90,7 @@ def test_render_rays_matches_a_naive_float64_loop():
     field = SlabField(sigma=4.0)
     o, d, t_min, t_max = rays()
     step, n_samples = 0.05, 64
-    out = render_rays(field, not_left_half, o, d, t_min, t_max, step, n_samples)
+    out = render_rays(field, not_left_half, o, d, t_min, t_max, Marching(step, n_samples))
     rgb, depth, probs = naive_render(field, not_left_half, o, d, t_min, t_max, step)
     np.testing.assert_allclose(out.rgb.double().numpy(), rgb, atol=2e-5)
     np.testing.assert_allclose(out.depth.double().numpy(), np.clip(depth, 0, None), atol=2e-5)
@@ -94,8 +101,8 @@ def test_early_stop_with_zero_threshold_is_the_full_composite():
     for rendering in ("probs", "scores"):
         field = SlabField(sigma=30.0, semantic_rendering=rendering)
         o, d, t_min, t_max = rays()
-        full = render_rays(field, not_left_half, o, d, t_min, t_max, 0.03, 80)
-        stopped = render_rays_early_stop(field, not_left_half, o, d, t_min, t_max, 0.03, 80, min_trans=0.0, segment=7)
+        full = render_rays(field, not_left_half, o, d, t_min, t_max, Marching(0.03, 80))
+        stopped = render_rays_early_stop(field, not_left_half, o, d, t_min, t_max, Marching(0.03, 80), min_trans=0.0, segment=7)
         assert stopped.n_evaluated == full.n_evaluated
         for name in ("rgb", "depth", "opacity", "class_log_probs"):
             torch.testing.assert_close(getattr(stopped, name), getattr(full, name), rtol=0, atol=1e-6)
@@ -104,9 +111,9 @@ def test_early_stop_with_zero_threshold_is_the_full_composite():
 def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_threshold():
     field = SlabField(sigma=200.0)  # opaque within a few samples of x = 0.2
     o, d, t_min, t_max = rays()
-    full = render_rays(field, every_cell, o, d, t_min, t_max, 0.02, 120)
+    full = render_rays(field, every_cell, o, d, t_min, t_max, Marching(0.02, 120))
     min_trans = 1e-4
-    stopped = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, 0.02, 120, min_trans=min_trans, segment=8)
+    stopped = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, Marching(0.02, 120), min_trans=min_trans, segment=8)
     assert stopped.n_evaluated < 0.75 * full.n_evaluated
     torch.testing.assert_close(stopped.opacity, full.opacity, rtol=0, atol=min_trans)
     torch.testing.assert_close(stopped.rgb, full.rgb, rtol=0, atol=2 * min_trans)
@@ -118,9 +125,9 @@ def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_thresho
 def test_early_stop_without_colour_and_with_no_samples():
     field = SlabField(sigma=50.0)
     o, d, t_min, t_max = rays(5)
-    out = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, 0.05, 40, with_rgb=False)
+    out = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, Marching(0.05, 40), CompositeOptions(with_rgb=False))
     assert out.rgb is None and torch.isfinite(out.depth).all()
-    empty = render_rays_early_stop(field, every_cell, o, d, t_max + 1, t_max, 0.05, 40)  # every interval empty
+    empty = render_rays_early_stop(field, every_cell, o, d, t_max + 1, t_max, Marching(0.05, 40))  # every interval empty
     assert empty.n_evaluated == 0
     torch.testing.assert_close(empty.opacity, torch.zeros(5))
     torch.testing.assert_close(empty.class_log_probs.exp(), torch.full((5, N_CLASSES), 1 / N_CLASSES))
@@ -153,7 +160,7 @@ def test_hierarchical_with_jitter_without_colour_and_with_empty_rays():
     o, d, t_min, t_max = rays(6)
     g = torch.Generator().manual_seed(3)
     jitter = (torch.rand(6, generator=g), torch.rand(6, 24, generator=g))
-    fine, coarse = render_rays_hierarchical(field, field, o, d, t_min, t_max, (12, 24), jitter, with_rgb=False)
+    fine, coarse = render_rays_hierarchical(field, field, o, d, t_min, t_max, (12, 24), jitter, CompositeOptions(with_rgb=False))
     assert fine.rgb is None and coarse.rgb is None
     for out in (fine, coarse):
         assert torch.isfinite(out.depth).all() and torch.all(out.opacity <= 1.0 + 1e-6)

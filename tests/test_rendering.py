@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from scenelabel.rendering import (
+from scenelabel.render.volume import (
     class_log_probs_from_scores,
     class_probs_from_weights,
     composite_rgb,

@@ -9,8 +9,8 @@ import time
 import pytest
 
 from scenelabel import SemanticField
-from scenelabel.checkpoint import load_checkpoint
-from scenelabel.synthetic import write_toy_scene
+from scenelabel.data.synthetic import write_toy_scene
+from scenelabel.fields.checkpoint import load_checkpoint
 
 pytestmark = pytest.mark.slow
 
@@ -30,7 +30,7 @@ def wait_for_checkpoint(proc, path, min_step=1):
         assert proc.poll() is None, proc.communicate()
         if path.exists():
             try:
-                if load_checkpoint(path)["step"] >= min_step:
+                if load_checkpoint(path).step >= min_step:
                     return
             except Exception:  # being replaced right now: try again
                 pass
@@ -53,7 +53,7 @@ def test_sigkill_then_resume_finishes_with_the_same_step_count(scene_and_config,
     wait_for_checkpoint(proc, out / "checkpoint.pt", min_step=2 * CHECKPOINT_EVERY)
     proc.send_signal(signal.SIGKILL)
     proc.communicate()
-    killed_at = load_checkpoint(out)["step"]
+    killed_at = load_checkpoint(out).step
     assert 0 < killed_at < TOTAL_STEPS
     done = subprocess.run(
         [sys.executable, "-m", "scenelabel", "build", str(scene), "--out", str(out), "--resume", "--quiet"],
@@ -64,7 +64,7 @@ def test_sigkill_then_resume_finishes_with_the_same_step_count(scene_and_config,
     assert done.returncode == 0, done.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == TOTAL_STEPS
-    assert load_checkpoint(out)["step"] == TOTAL_STEPS
+    assert load_checkpoint(out).step == TOTAL_STEPS
     field = SemanticField.load(out)
     assert field.query_points([[0.0, 0.0, 0.1]]).label.shape == (1,)
 
@@ -78,5 +78,5 @@ def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(scene_and_config, tmp_
     _, stderr = proc.communicate(timeout=WAIT_SECONDS)
     assert proc.returncode == 130, stderr
     assert "checkpoint saved" in stderr and "--resume" in stderr and "Traceback" not in stderr
-    saved = load_checkpoint(out)["step"]
+    saved = load_checkpoint(out).step
     assert f"interrupted at step {saved}" in stderr

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from scenelabel.sampling import (
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp
+from scenelabel.render.sampling import (
     MIN_DISPARITY,
     MIN_DISPARITY_T,
     PDF_EPS,
@@ -18,7 +19,6 @@ from scenelabel.sampling import (
     occupied_at,
     ray_aabb_intersect,
 )
-from scenelabel.warps import BoxWarp, ForwardWarp
 
 
 def naive_slab(o, d, lo, hi):

@@ -5,8 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from scenelabel.data.scene import ClassMap
 from scenelabel.errors import InputError
-from scenelabel.scene import Cameras, ClassMap
+from scenelabel.geometry.cameras import Cameras
 
 CLASSES = {0: "floor", 3: "box", 7: "wall", 200: "lamp"}
 
@@ -62,7 +63,7 @@ def test_cameras_shape_checks_and_indexing():
 def _scene(aabb=True):
     from pathlib import Path
 
-    from scenelabel.scene import Scene
+    from scenelabel.data.scene import Scene
 
     rng = np.random.default_rng(0)
     c2w = np.stack([np.eye(4)] * 3)

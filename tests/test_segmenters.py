@@ -1,4 +1,4 @@
-"""2D segmenters (scenelabel.segmenters): torch modules, torchvision models (through a fake
+"""2D segmenters (scenelabel.data.segmenters): torch modules, torchvision models (through a fake
 torchvision package: the real one is not importable here and no weights are downloaded), ONNX
 models through OpenCV dnn, spec strings, and writing labels/ + classes.json for a scene."""
 
@@ -19,23 +19,22 @@ import torch.nn.functional as F
 from onnx import TensorProto, helper, numpy_helper
 from PIL import Image
 
-from scenelabel.errors import InputError
-from scenelabel.io.common import read_classes, read_label
-from scenelabel.segmenters import (
+from scenelabel.data.io.common import read_classes, read_label
+from scenelabel.data.segmenters import (
     TORCHVISION_ARCHS,
     TORCHVISION_WEIGHT_FILES,
     VOC_CLASSES,
     OnnxSegmenter,
     Segmenter,
     TorchSegmenter,
-    _logits_to_ids,
     load_segmenter,
     segment_scene,
-    torchvision_weights_path,
     torchvision_segmenter,
+    torchvision_weights_path,
     voc_colors,
 )
-
+from scenelabel.data.segmenters.common import logits_to_ids
+from scenelabel.errors import InputError
 
 # A linear pixel classifier with hand-computable output: logits = W @ rgb + b.
 # Grey v: class 0 when v < 0.5 (dark), class 1 when v > 0.5 (bright); saturated red: class 2.
@@ -120,13 +119,13 @@ def test_torch_segmenter_resizes_strided_logits_back_to_image_size():
 
 
 def test_logits_to_ids_in_bands_equals_full_bilinear_resize(monkeypatch):
-    import scenelabel.segmenters as segmenters
+    import scenelabel.data.segmenters.common as common
 
-    monkeypatch.setattr(segmenters, "_BAND_ELEMENTS", 5 * 61)  # 1 output row per band
+    monkeypatch.setattr(common, "_BAND_ELEMENTS", 5 * 61)  # 1 output row per band
     rng = np.random.default_rng(3)
     for (h_in, w_in), (h, w) in [((7, 9), (31, 61)), ((31, 9), (31, 61)), ((7, 61), (31, 61)), ((40, 70), (31, 61))]:
         logits = torch.from_numpy(rng.normal(size=(5, h_in, w_in))).float()
-        ids = _logits_to_ids(logits, h, w, torch.tensor([3, 1, 4, 10, 20]))
+        ids = logits_to_ids(logits, h, w, torch.tensor([3, 1, 4, 10, 20]))
         reference = F.interpolate(logits[None].double(), size=(h, w), mode="bilinear", align_corners=False)[0]
         top2 = reference.topk(2, dim=0).values
         clear = (top2[0] - top2[1] > 1e-4).numpy()
@@ -645,7 +644,7 @@ def test_segment_scene_input_errors(tmp_path):
 
 def test_segment_scene_then_load_scene(tmp_path):
     from scenelabel import write_toy_scene
-    from scenelabel.io import load_scene
+    from scenelabel.data.io import load_scene
 
     scene = write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18)
     shutil.rmtree(scene / "labels")

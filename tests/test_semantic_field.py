@@ -3,13 +3,14 @@
 import numpy as np
 import pytest
 import torch
+from threads import assert_concurrent_calls_match
 
 from scenelabel import FREE, UNKNOWN, InputError, SemanticField, build, preset, write_toy_scene
 from scenelabel.errors import CheckpointError
+from scenelabel.geometry.cameras import cameras_to_dict
 from scenelabel.maps import confidence_from_probs, unit_from_uint8
-from scenelabel.semantic_field import TRAIN_CAMERAS_KEY
-from scenelabel.visibility import cameras_to_dict, observed_voxels, project_points, scaled_cameras
-from threads import assert_concurrent_calls_match
+from scenelabel.maps.visibility import observed_voxels, project_points, scaled_cameras
+from scenelabel.query.field import TRAIN_CAMERAS_KEY
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Structure from motion (scenelabel.sfm): a rendered random-texture scene with known poses, the
+"""Structure from motion (scenelabel.data.sfm): a rendered random-texture scene with known poses, the
 too-few-registered error, the cache, and real photos from ../shared/data (Sceaux castle, LLFF fern).
 
 Rotations are compared up to the similarity SfM cannot know (world rotation, translation, scale):
@@ -17,21 +17,16 @@ import numpy as np
 import pytest
 from PIL import Image
 from scipy import ndimage
-
-from scenelabel.errors import InputError
-from scenelabel.metrics import pose_centre_errors, pose_rotation_errors_deg
-from scenelabel.io.llff import read_poses_bounds
-from scenelabel.io.transforms_json import load_transforms, opengl_to_opencv
-from scenelabel.sfm import (
-    SPARSE_MODEL,
-    SfmResult,
-    default_min_registered,
-    read_sfm_poses,
-    run_sfm,
-)
-from scenelabel.synthetic import Box, ClassInfo, SyntheticScene, look_at, render_view
-
 from shared_data import DATA
+
+from scenelabel.data.io.llff import read_poses_bounds
+from scenelabel.data.io.transforms_json import load_transforms
+from scenelabel.data.sfm import SPARSE_MODEL, SfmResult, default_min_registered, read_sfm_poses, run_sfm
+from scenelabel.data.synthetic import Box, ClassInfo, SyntheticScene, look_at, render_view
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import opengl_to_opencv
+from scenelabel.metrics import pose_centre_errors, pose_rotation_errors_deg
+
 SCEAUX = DATA / "openmvg_sceaux_castle"
 FERN = DATA / "llff_fern"
 

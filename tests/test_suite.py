@@ -1,4 +1,4 @@
-"""Tests of scenelabel.suite: the procedurally varied room suite the project's defaults are chosen on."""
+"""Tests of scenelabel.data.suite: the procedurally varied room suite the project's defaults are chosen on."""
 
 from __future__ import annotations
 
@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scenelabel.errors import InputError
-from scenelabel.io import load_scene
-from scenelabel.suite import (
+from scenelabel.data.io import load_scene
+from scenelabel.data.suite import (
     CAMERA_CLEARANCE,
     FOV_X_DEG,
     STRUCTURAL_PARTS,
@@ -24,7 +23,7 @@ from scenelabel.suite import (
     suite_spec,
     write_suite_scene,
 )
-from scenelabel.synthetic import (
+from scenelabel.data.synthetic import (
     BACKGROUND_ID,
     HOLDOUT_EVERY,
     cast_rays,
@@ -34,6 +33,7 @@ from scenelabel.synthetic import (
     toy_scene_geometry,
     write_scene,
 )
+from scenelabel.errors import InputError
 
 VOCAB = {c.id for c in SUITE_CLASSES}
 TARGET_ROOMS = [s for s in SUITE if (s.width, s.height) == (160, 120) and 30 <= s.n_views <= 60]

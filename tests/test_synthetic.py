@@ -1,4 +1,4 @@
-"""Tests of scenelabel.synthetic: exact ray casting, the written scene folders, conventions."""
+"""Tests of scenelabel.data.synthetic: exact ray casting, the written scene folders, conventions."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ import pytest
 from PIL import Image
 from scipy.ndimage import binary_erosion
 
-from scenelabel.errors import InputError
-from scenelabel.synthetic import (
+from scenelabel.data.synthetic import (
     BACKGROUND_ID,
     ROOM_BOXES,
     TOY_BOXES,
@@ -23,6 +22,7 @@ from scenelabel.synthetic import (
     write_furnished_room,
     write_toy_scene,
 )
+from scenelabel.errors import InputError
 
 FLOOR_TOP = 0.0
 TOY_PRESENT = {1, 3, 7, BACKGROUND_ID}
@@ -353,7 +353,7 @@ def test_deterministic(tmp_path):
 
 
 def test_corrupt_labels_hits_the_fraction_and_keeps_ignored_pixels():
-    from scenelabel.synthetic import corrupt_labels
+    from scenelabel.data.synthetic import corrupt_labels
 
     rng = np.random.default_rng(0)
     lab = np.full((60, 80), 1, np.int64)

@@ -6,10 +6,11 @@ import pytest
 import torch
 
 from scenelabel import SemanticField, TrainingError, build, load_scene, preset, write_toy_scene
-from scenelabel.checkpoint import load_checkpoint
 from scenelabel.errors import ConfigError
-from scenelabel.losses import total_variation
-from scenelabel.pipeline import prepare_training
+from scenelabel.fields.checkpoint import load_checkpoint
+from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.train.losses import total_variation
+from scenelabel.train.pipeline import prepare_training
 
 pytestmark = pytest.mark.slow
 
@@ -31,11 +32,11 @@ def test_learning_rate_100x_too_high_is_detected(scene, tmp_path):
     with pytest.raises(TrainingError, match="diverged.*learning rate") as info:
         build(scene, tmp_path / "out", config, progress=False)
     assert "last checkpoint before the failure is kept" in str(info.value)
-    assert load_checkpoint(tmp_path / "out")["step"] < 400  # an earlier checkpoint, not the failed state
+    assert load_checkpoint(tmp_path / "out").step < 400  # an earlier checkpoint, not the failed state
 
 
 def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch):
-    import scenelabel.train as train
+    import scenelabel.train.trainer as train
 
     real = train.photometric_mse
     calls = {"n": 0}
@@ -49,7 +50,7 @@ def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch
     with pytest.raises(TrainingError, match="non-finite at step 20") as info:
         build(scene, tmp_path / "out", config, progress=False)
     assert "last checkpoint before the failure" in str(info.value)
-    assert load_checkpoint(tmp_path / "out")["step"] == 20
+    assert load_checkpoint(tmp_path / "out").step == 20
 
 
 HIERARCHICAL = {"sampling": {"strategy": "hierarchical", "n_coarse": 16, "n_fine": 32}, "train": {"batch_rays": 128}}
@@ -122,3 +123,21 @@ def test_total_variation_smooths_a_dense_grid(scene):
 def test_total_variation_needs_a_dense_grid(scene):
     with pytest.raises(ConfigError, match="dense grid"):
         prepare_training(load_scene(scene), preset("quick", {"train": {"tv_weight": 0.1}}), torch.device("cpu"))
+
+
+def test_a_random_background_makes_every_training_ray_opaque(scene, tmp_path):
+    """train.background "random": a ray left transparent would show a new colour every step, so
+    the field fills even what the images show as background (the toy's white backdrop) with
+    matter; with a white background those rays stay transparent. Renders use white."""
+    loaded = load_scene(scene)
+    view = 0
+    background = loaded.depths[view].reshape(-1) == 0  # pixels whose ray hits no box
+    origins, directions = rays_from_cameras(loaded.cameras, view)
+    opacity = {}
+    for name, colour in (("white", (1.0, 1.0, 1.0)), ("random", "random")):
+        config = preset("quick", {"train": {"steps": 300, "background": colour}, "output": {"write_map": False, "write_renders": False}})
+        field = build(scene, tmp_path / name, config, progress=False).field
+        rays = field.query_rays(origins[background], directions[background])
+        assert np.all(np.isfinite(rays.rgb))
+        opacity[name] = float(np.median(rays.opacity))
+    assert opacity["white"] < 0.5 < 0.9 < opacity["random"], opacity

@@ -1,4 +1,4 @@
-"""Tests of scenelabel.visibility: projection, shrunk cameras, the observed-space rule (numpy only)."""
+"""Tests of scenelabel.maps.visibility: projection, shrunk cameras, the observed-space rule (numpy only)."""
 
 from __future__ import annotations
 
@@ -7,15 +7,12 @@ import math
 import numpy as np
 import pytest
 
+from scenelabel.data.synthetic import look_at
 from scenelabel.errors import InputError
-from scenelabel.io.transforms_json import opengl_to_opencv
-from scenelabel.rays import camera_directions_from_pixels, rays_from_cameras
-from scenelabel.scene import Cameras
-from scenelabel.synthetic import look_at
-from scenelabel.visibility import (
+from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_dict, opengl_to_opencv
+from scenelabel.geometry.rays import camera_directions_from_pixels, rays_from_cameras
+from scenelabel.maps.visibility import (
     camera_surfaces,
-    cameras_from_dict,
-    cameras_to_dict,
     min_depth_over_neighbours,
     observed_voxels,
     project_points,
@@ -40,7 +37,7 @@ def three_cameras() -> Cameras:
 
 
 def naive_visible(points, cameras, depth_maps, margin, pixel_margin=1.0):
-    """The rule of scenelabel.visibility, one point and one camera at a time, plain Python."""
+    """The rule of scenelabel.maps.visibility, one point and one camera at a time, plain Python."""
     out = []
     for p in points:
         seen = False
@@ -254,7 +251,7 @@ def test_toy_scene_map_observed_space(toy_build):
     with their class, space above the boxes is FREE, space under the floor and outside every
     frustum is UNKNOWN. The trained surfaces are soft (a voxel or two deep), hence the insets."""
     from scenelabel import FREE, UNKNOWN
-    from scenelabel.synthetic import TOY_BOXES
+    from scenelabel.data.synthetic import TOY_BOXES
 
     field = toy_build.field
     m = field.occupancy_map(voxel_size=0.05)

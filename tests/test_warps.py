@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from scenelabel.frame import frustum_points
-from scenelabel.scene import Cameras
-from scenelabel.warps import BoxWarp, ForwardWarp, forward_facing_reference, warp_from_dict
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.frame import frustum_points
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp, forward_facing_reference, warp_from_dict
 
 
 def rot_x(a):

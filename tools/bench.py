@@ -31,7 +31,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = {
-    # name: (writer, description, its boxes in scenelabel.synthetic: the ground truth for ray queries)
+    # name: (writer, description, its boxes in scenelabel.data.synthetic: the ground truth for ray queries)
     "toy": ("write_toy_scene", "toy two-box scene, 28 train + 4 held-out views, 96x72", "TOY_BOXES"),
     "room": ("write_furnished_room", "furnished room 6x6x2.6 m, 35 train + 5 held-out views, 160x120", "ROOM_BOXES"),
 }
@@ -156,7 +156,7 @@ def _time_baked(field, inputs, field_answers, truth) -> list[dict]:
 def _time_queries(field, boxes) -> dict:
     """query_points, query_rays, occupancy_map and cast_rays timings of a field (medians of
     REPEATS), and the rays' answers against the scene's true boxes."""
-    from scenelabel import synthetic
+    from scenelabel.data import synthetic
 
     pts, ray_origins, ray_dirs = query_inputs(field)
     q_times = []

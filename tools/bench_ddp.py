@@ -143,7 +143,7 @@ def main() -> None:
         write_section(doc, data["rows"], data["command"])
         return
     command = "python tools/bench_ddp.py " + " ".join(sys.argv[1:])
-    from scenelabel.synthetic import write_furnished_room, write_toy_scene
+    from scenelabel.data.synthetic import write_furnished_room, write_toy_scene
 
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:

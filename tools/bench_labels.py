@@ -6,7 +6,7 @@
 Each build trains on the scene with its *training* label files altered (held-out labels stay clean):
 
 - noise: random discs of wrong classes over 10-50% of each training mask
-  (:func:`scenelabel.synthetic.corrupt_labels`);
+  (:func:`scenelabel.data.synthetic.corrupt_labels`);
 - sparse: labels kept on only a fraction of the training views (the others train colour only).
 
 Reported per build: the mIoU of the (corrupted) input masks against the clean masks of the same
@@ -46,7 +46,7 @@ def _miou(pred_labels, true_labels, class_ids, ignore) -> float:
 def _alter_labels(src: Path, dst: Path, noise: float, label_fraction: float, seed: int) -> None:
     """Copy the scene folder and corrupt / drop its training label files (every 8th view held out)."""
     from scenelabel import load_scene
-    from scenelabel.synthetic import corrupt_labels
+    from scenelabel.data.synthetic import corrupt_labels
 
     shutil.copytree(src, dst)
     scene = load_scene(dst)
@@ -89,7 +89,7 @@ def run_case(scene_dir: Path, work: Path, case: dict, preset_name: str, train_ov
     fused_miou = _miou(rendered_train, [clean.labels[i] for i in labelled], ids, ignore)
     renders = [field.render_camera(clean.cameras, i) for i in test]
     sweep = []
-    from scenelabel.postprocess import smooth_class_probs
+    from scenelabel.query.postprocess import smooth_class_probs
 
     for sigma in SIGMAS:
         labels = []

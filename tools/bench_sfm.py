@@ -3,7 +3,7 @@
     .venv/bin/python tools/bench_sfm.py
 
 Needs ../shared/data. Each capture's photos are linked into a temporary scene folder (the shared
-data is never written to) and `scenelabel.sfm.run_sfm` runs on them, one after the other:
+data is never written to) and `scenelabel.data.sfm.run_sfm` runs on them, one after the other:
 LLFF fern (images_8, 504x378; its poses_bounds.npy is the reference: rotation error after fitting
 the world rotation, centre error after a similarity fit), Sceaux Castle (11 ordered photos,
 features at 1000 px) and Sacre Coeur (10 internet photos, several cameras).
@@ -24,10 +24,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 DATA = REPO.parent / "shared" / "data"
 
-from scenelabel.io.common import list_images  # noqa: E402
-from scenelabel.io.llff import read_poses_bounds  # noqa: E402
-from scenelabel.metrics import pose_centre_errors, pose_rotation_errors_deg  # noqa: E402
-from scenelabel.sfm import read_sfm_poses, run_sfm  # noqa: E402
+from scenelabel.data.io.common import list_images
+from scenelabel.data.io.llff import read_poses_bounds
+from scenelabel.data.sfm import read_sfm_poses, run_sfm
+from scenelabel.metrics import pose_centre_errors, pose_rotation_errors_deg
 
 CAPTURES = (
     # name, photos folder, run_sfm keyword arguments

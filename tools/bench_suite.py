@@ -5,7 +5,7 @@
     .venv/bin/python tools/bench_suite.py --variants - distortion --budget 120 --out /tmp/candidates.md
     .venv/bin/python tools/bench_suite.py --rewrite                        # the document again from docs/suite.json
 
-Each room (scenelabel.suite.SUITE) is written as users' files are (no near/far, no aabb) and built
+Each room (scenelabel.data.suite.SUITE) is written as users' files are (no near/far, no aabb) and built
 as a new user would (`build` with the default preset, or a variant of it) in a fresh subprocess.
 Beside held-out PSNR and mIoU every row carries 3D metrics against the exact boxes
 (scenelabel.metrics): median relative ray depth error on the held-out views' pixels; labels of
@@ -38,6 +38,8 @@ VARIANTS: dict[str, dict] = {
     "distortion": {"train": {"distortion_weight": 0.002}},
     "solid": {"train": {"solid_weight": 0.01}},
     "voxels": {"preset": "voxels"},
+    "random-bg": {"train": {"background": "random"}},
+    "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (
@@ -57,7 +59,7 @@ TARGETS = (
 
 def _probe_rays(scene, views: list[int], rng: np.random.Generator):
     """PROBE_RAYS random pixel rays of ``views`` with their exact depth and class."""
-    from scenelabel.rays import rays_from_cameras
+    from scenelabel.geometry.rays import rays_from_cameras
 
     origins, directions, depth, label = [], [], [], []
     for i in views:
@@ -71,8 +73,8 @@ def _probe_rays(scene, views: list[int], rng: np.random.Generator):
 
 def _truth_points(scene, rng: np.random.Generator) -> np.ndarray:
     """Points of the true surfaces every view sees (exact depth), TRUTH_POINTS at most."""
+    from scenelabel.geometry.rays import rays_from_cameras
     from scenelabel.metrics import surface_points_from_depth
-    from scenelabel.rays import rays_from_cameras
 
     points = []
     for i in range(len(scene)):
@@ -119,8 +121,8 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
     import torch
 
     from scenelabel import build, load_scene, preset
-    from scenelabel.pipeline import split_views
-    from scenelabel.suite import suite_geometry, suite_spec, write_suite_scene
+    from scenelabel.data.suite import suite_geometry, suite_spec, write_suite_scene
+    from scenelabel.train.pipeline import split_views
 
     torch.set_num_threads(os.cpu_count() or 1)
     room = suite_spec(spec["scene"])
@@ -301,7 +303,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
 
 
 def main() -> None:
-    from scenelabel.suite import SUITE
+    from scenelabel.data.suite import SUITE
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", nargs="+", default=[s.name for s in SUITE])

@@ -29,9 +29,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from bench import (  # tools/ is on sys.path when run as a script
+    QUERY_POINTS,
+    QUERY_RAYS,
+    REPEATS,
+    _ray_accuracy,
+    query_inputs,
+)
 
-from bench import QUERY_POINTS, QUERY_RAYS, REPEATS, _ray_accuracy, query_inputs  # tools/ is on sys.path when run as a script
-from scenelabel import SemanticField, build, preset, synthetic, write_furnished_room
+from scenelabel import SemanticField, build, preset, write_furnished_room
+from scenelabel.data import synthetic
 
 WALL_CELLS = 2
 """Cells within this many cells beyond the walls' inner faces count as the room (they hold the walls' density)."""

@@ -46,12 +46,12 @@ class TriPlane(nn.Module):
 
 class _TrilinearCPU(torch.autograd.Function):
     """grid [X, Y, Z, C] trilinear at vertex-index coordinates [n, 3] -> [n, C], in compiled loops
-    (scenelabel._lattice_kernels); the backward scatters into a dense gradient of the grid (none
+    (scenelabel.render.lattice_kernels); the backward scatters into a dense gradient of the grid (none
     for the coordinates)."""
 
     @staticmethod
     def forward(ctx, grid: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-        from .. import _lattice_kernels as kernels
+        from scenelabel.render import lattice_kernels as kernels
 
         values, points = grid.detach().contiguous().numpy(), index.detach().contiguous().numpy()
         out = np.empty((len(points), values.shape[3]), np.float32)
@@ -66,7 +66,7 @@ class _TrilinearCPU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
-        from .. import _lattice_kernels as kernels
+        from scenelabel.render import lattice_kernels as kernels
 
         (index,) = ctx.saved_tensors
         grad = np.zeros(ctx.grid_shape, np.float32)

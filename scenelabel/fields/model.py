@@ -11,10 +11,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..config import FieldConfig
-from ..errors import ConfigError
-from ..warps import BoxWarp
-from .encodings import DenseGrid, Positional, TriPlane, sh_directions
+from scenelabel.config import FieldConfig
+from scenelabel.errors import ConfigError
+from scenelabel.fields.encodings import DenseGrid, Positional, TriPlane, sh_directions
+from scenelabel.geometry.warps import BoxWarp
 
 __all__ = ["SemanticField3D", "build_encoding", "dense_grid_shape", "trunc_exp", "combine_class_densities"]
 

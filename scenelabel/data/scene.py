@@ -1,0 +1,170 @@
+"""Scene data: cameras (:mod:`scenelabel.geometry.cameras`), images, label maps and the class map,
+in scenelabel's conventions.
+
+Every loader in :mod:`scenelabel.data.io` converts its input into these types; see docs/conventions.md.
+
+- Cameras: ``c2w`` is camera-to-world with **OpenCV camera axes** (x right, y down, z forward),
+  in the input's own world frame and units. Intrinsics in pixels; the centre of pixel (col, row)
+  is at (col + 0.5, row + 0.5).
+- Images: float32 RGB in [0, 1], shape [height, width, 3].
+- Labels: int64 external class ids (those of classes.json), shape [height, width];
+  ``ignore_index`` marks unlabelled pixels.
+- Depths (ground truth, synthetic scenes only): distance along the unit ray direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+
+__all__ = ["Scene", "ClassMap", "UNLABELLED_NAME"]
+
+#: Class name of the single channel of a build without labels (photometric only).
+UNLABELLED_NAME = "unlabelled"
+
+
+@dataclass
+class Scene:
+    """A loaded scene: cameras plus per-view images, optional labels and optional depths.
+
+    Attributes:
+        root: the scene folder.
+        cameras: one camera per view.
+        names: [n] view names (image file stems).
+        images: n arrays [h, w, 3] float32 in [0, 1].
+        labels: n arrays [h, w] int64 of external class ids, or None for an unlabelled view.
+        depths: n arrays [h, w] float32 ground-truth depth along the unit ray, or None.
+        classes: the full vocabulary of classes.json: external id -> name.
+        ignore_index: the label value of unlabelled pixels, or None.
+        aabb: [2, 3] explicit scene bounds (min corner, max corner) from the input, or None.
+        frame_id: name of the world frame (for exports).
+    """
+
+    root: Path
+    cameras: Cameras
+    names: list[str]
+    images: list[np.ndarray]
+    labels: list[np.ndarray | None]
+    depths: list[np.ndarray | None]
+    classes: dict[int, str]
+    ignore_index: int | None = None
+    aabb: np.ndarray | None = None
+    frame_id: str = "world"
+    info: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def scaled(self, factor: float) -> "Scene":
+        """This scene with world lengths multiplied by ``factor`` (camera centres, near/far, depths, aabb).
+
+        For inputs of arbitrary scale (COLMAP, SfM): ``factor`` = metres per input unit makes every
+        output metric. Rotations, intrinsics and images are unchanged. ``info["world_scale"]`` records
+        the factor (products of repeated calls).
+        """
+        factor = float(factor)
+        if not (np.isfinite(factor) and factor > 0):
+            raise InputError(f"scale must be a positive finite number, got {factor}", field="scale")
+        c2w = self.cameras.c2w.copy()
+        c2w[:, :3, 3] *= factor
+        cameras = Cameras(**{**vars(self.cameras), "c2w": c2w, "near": self.cameras.near * factor, "far": self.cameras.far * factor})
+        return Scene(
+            root=self.root,
+            cameras=cameras,
+            names=list(self.names),
+            images=self.images,
+            labels=self.labels,
+            depths=[None if d is None else d * np.float32(factor) for d in self.depths],
+            classes=dict(self.classes),
+            ignore_index=self.ignore_index,
+            aabb=None if self.aabb is None else np.asarray(self.aabb, np.float64) * factor,
+            frame_id=self.frame_id,
+            info={**self.info, "world_scale": self.info.get("world_scale", 1.0) * factor},
+        )
+
+
+@dataclass(frozen=True)
+class ClassMap:
+    """External class ids <-> compact channels.
+
+    Only classes present in the training masks get a channel ("model only what a scene
+    requires"). Channel ``c`` stands for external id ``ids[c]``; ``ids`` is ascending.
+
+    Attributes:
+        ids: [C] int64 external class ids that own a channel.
+        names: [C] class names.
+        ignore_index: external label value that means "unlabelled", or None.
+    """
+
+    ids: np.ndarray
+    names: tuple[str, ...]
+    ignore_index: int | None = None
+
+    def __post_init__(self) -> None:
+        ids = np.asarray(self.ids, dtype=np.int64)
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "names", tuple(self.names))
+        if ids.ndim != 1 or len(ids) == 0:
+            raise InputError("a class map needs at least one class")
+        if len(ids) != len(self.names):
+            raise InputError(f"{len(ids)} class ids but {len(self.names)} names")
+        if np.any(np.diff(ids) <= 0):
+            raise InputError(f"class ids must be unique and ascending, got {ids.tolist()}")
+        if self.ignore_index is not None and self.ignore_index in set(ids.tolist()):
+            raise InputError(f"ignore_index {self.ignore_index} is also a class id")
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.ids)
+
+    @staticmethod
+    def unlabelled() -> "ClassMap":
+        """The one-channel map of a scene without labels: every surface is class 0, "unlabelled"."""
+        return ClassMap(ids=np.zeros(1, np.int64), names=(UNLABELLED_NAME,))
+
+    @staticmethod
+    def from_labels(
+        labels: list[np.ndarray | None], classes: dict[int, str], ignore_index: int | None = None
+    ) -> "ClassMap":
+        """The classes of ``classes`` that occur in ``labels`` (ignore_index excluded)."""
+        present: set[int] = set()
+        for label in labels:
+            if label is not None:
+                present.update(np.unique(label).tolist())
+        present.discard(ignore_index)
+        unknown = sorted(present - set(classes))
+        if unknown:
+            raise InputError(f"label ids {unknown} are not in classes.json")
+        if not present:
+            raise InputError("no labelled pixel in the training views: at least one class is needed")
+        ids = np.array(sorted(present), dtype=np.int64)
+        return ClassMap(ids=ids, names=tuple(classes[i] for i in ids.tolist()), ignore_index=ignore_index)
+
+    def channels_from_ids(self, labels: np.ndarray) -> np.ndarray:
+        """Map external ids to channels; ignore_index (and ids without a channel) -> -1.
+
+        Args:
+            labels: int array of external ids, any shape.
+        Returns:
+            int64 array of the same shape with values in [-1, C).
+        """
+        labels = np.asarray(labels, dtype=np.int64)
+        pos = np.searchsorted(self.ids, labels).clip(0, self.num_classes - 1)
+        return np.where(self.ids[pos] == labels, pos, -1).astype(np.int64)
+
+    def ids_from_channels(self, channels: np.ndarray) -> np.ndarray:
+        """Map channels to external ids; negative values (FREE, UNKNOWN, ignore) pass through."""
+        channels = np.asarray(channels, dtype=np.int64)
+        return np.where(channels >= 0, self.ids[channels.clip(0, self.num_classes - 1)], channels)
+
+    def to_dict(self) -> dict:
+        return {"ids": self.ids.tolist(), "names": list(self.names), "ignore_index": self.ignore_index}
+
+    @staticmethod
+    def from_dict(data: dict) -> "ClassMap":
+        return ClassMap(ids=np.asarray(data["ids"], np.int64), names=tuple(data["names"]), ignore_index=data.get("ignore_index"))

@@ -1,0 +1,66 @@
+"""Analytic scenes with exact labels and depth: the toy two-box scene and a furnished room.
+
+Labelled axis-aligned boxes and per-class textures are rendered by one exact ray caster (no NeRF
+involved) into scene folders in the ``transforms.json`` layout (docs/conventions.md).
+
+Modules: ``geometry`` (boxes, scenes, ray casting and shading), ``textures``, ``views`` (cameras,
+pixel rays, rendering one view) and ``scenes`` (the two scenes, camera paths, writers, label noise).
+"""
+
+from __future__ import annotations
+
+from scenelabel.data.synthetic.geometry import (
+    BACKGROUND_ID,
+    Box,
+    ClassInfo,
+    RayHits,
+    SyntheticScene,
+    cast_rays,
+    shade_hits,
+)
+from scenelabel.data.synthetic.scenes import (
+    HOLDOUT_EVERY,
+    ROOM_BOXES,
+    ROOM_CLASSES,
+    ROOM_HALF,
+    ROOM_HEIGHT,
+    TOY_BOXES,
+    TOY_CLASSES,
+    corrupt_labels,
+    furnished_room_geometry,
+    room_cameras,
+    toy_cameras,
+    toy_scene_geometry,
+    write_furnished_room,
+    write_scene,
+    write_toy_scene,
+)
+from scenelabel.data.synthetic.views import look_at, pixel_rays, render_view
+
+__all__ = [
+    "BACKGROUND_ID",
+    "HOLDOUT_EVERY",
+    "ROOM_BOXES",
+    "ROOM_CLASSES",
+    "ROOM_HALF",
+    "ROOM_HEIGHT",
+    "TOY_BOXES",
+    "TOY_CLASSES",
+    "Box",
+    "ClassInfo",
+    "RayHits",
+    "SyntheticScene",
+    "cast_rays",
+    "corrupt_labels",
+    "furnished_room_geometry",
+    "look_at",
+    "pixel_rays",
+    "render_view",
+    "room_cameras",
+    "shade_hits",
+    "toy_cameras",
+    "toy_scene_geometry",
+    "write_furnished_room",
+    "write_scene",
+    "write_toy_scene",
+]

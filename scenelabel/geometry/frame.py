@@ -1,0 +1,166 @@
+"""Scene bounds from the cameras, and the world <-> normalised frame transform.
+
+The field works in a normalised frame ``x_n = (x_world - centre) * scale`` where the scene box
+fits [-1, 1]^3 (its longest side spans exactly [-1, 1]). The transform is isotropic, so
+directions are unchanged and distances scale by ``scale``; it is undone on every output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.rays import camera_directions_from_pixels
+
+__all__ = ["SceneFrame", "aabb_from_cameras", "aabb_from_points", "frustum_points", "near_far_or_fallback"]
+
+FALLBACK_FAR_FACTOR = 1.5
+"""Without near/far, far = this x the diameter of the camera centres (an inward-looking capture)."""
+
+FALLBACK_NEAR_FRACTION = 0.02
+"""Without near, near = this fraction of far."""
+
+AABB_PAD = 0.02
+"""Bounds are padded by this fraction of their longest side on every face."""
+
+POINTS_PERCENTILES = (0.5, 99.5)
+"""Bounds from observed points span these percentiles of the points on each axis (stray points
+beyond them move nothing)."""
+
+POINTS_PAD = 0.1
+"""Bounds from observed points are padded by this fraction of their longest side on every face: a
+wall whose observed points fall short of its plane (a coarse field's depth errs both ways) is
+still inside the box."""
+
+MIN_BOUNDING_POINTS = 100
+"""Fewer observed points than this do not bound a scene (the camera frusta do instead)."""
+
+
+def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.ndarray:
+    """Corners (and centre rays) of every camera's frustum between ``near`` and ``far``.
+
+    Args:
+        cameras: n cameras.
+        near, far: [n] distances along the unit rays.
+    Returns:
+        [n * 10, 3] world points: 5 rays (4 image corners, centre) at near and at far.
+    """
+    points = []
+    for i in range(len(cameras)):
+        w, h = float(cameras.width[i]), float(cameras.height[i])
+        pix = np.array([[0, 0], [w, 0], [0, h], [w, h], [w / 2, h / 2]], dtype=np.float64)
+        dirs = camera_directions_from_pixels(
+            pix, cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i], cameras.distortion[i]
+        )
+        dirs_w = dirs @ cameras.c2w[i, :3, :3].T
+        origin = cameras.c2w[i, :3, 3]
+        for t in (near[i], far[i]):
+            points.append(origin + t * dirs_w)
+    return np.concatenate(points)
+
+
+def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's [near, far], with the fallbacks where the input gives none.
+
+    Without far: FALLBACK_FAR_FACTOR x the diameter of the camera centres; without near:
+    FALLBACK_NEAR_FRACTION x far.
+
+    Returns:
+        near, far: [n] float64.
+    """
+    far = cameras.far.copy()
+    if np.any(~np.isfinite(far)):
+        centres = cameras.centres
+        diameter = float(np.linalg.norm(centres.max(0) - centres.min(0)))
+        if diameter <= 0:
+            raise InputError("cannot bound the scene: no near/far and all cameras at one point", field="far")
+        far = np.where(np.isfinite(far), far, FALLBACK_FAR_FACTOR * diameter)
+    near = np.where(np.isfinite(cameras.near), cameras.near, FALLBACK_NEAR_FRACTION * far)
+    return near, far
+
+
+def aabb_from_points(points: np.ndarray) -> np.ndarray | None:
+    """Bounds of observed points: POINTS_PERCENTILES per axis, padded by POINTS_PAD of the longest
+    side; None for fewer than MIN_BOUNDING_POINTS points or a flat point set.
+
+    Args:
+        points: [k, 3] world points (e.g. where the training rays of a coarse field end).
+    Returns:
+        aabb [2, 3] float64 or None.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if len(points) < MIN_BOUNDING_POINTS:
+        return None
+    lo, hi = np.percentile(points, POINTS_PERCENTILES, axis=0)
+    extent = float((hi - lo).max())
+    if not extent > 0:
+        return None
+    pad = POINTS_PAD * extent
+    return np.stack([lo - pad, hi + pad])
+
+
+def aabb_from_cameras(
+    cameras: Cameras, explicit: np.ndarray | None = None, points: np.ndarray | None = None
+) -> tuple[np.ndarray, str]:
+    """Scene bounds: explicit ones when given; else, where the cameras have no far and enough
+    observed ``points`` are given, the points' bounds (:func:`aabb_from_points`) within the camera
+    frusta; else the union of the camera frusta over [near, far].
+
+    Where a camera has no near/far, far = FALLBACK_FAR_FACTOR x the camera-centre diameter and
+    near = FALLBACK_NEAR_FRACTION x far.
+
+    Returns:
+        aabb [2, 3] float64 (min corner, max corner), and a word on where it came from.
+    """
+    if explicit is not None:
+        aabb = np.asarray(explicit, dtype=np.float64).reshape(2, 3)
+        if not np.all(np.isfinite(aabb)) or np.any(aabb[1] <= aabb[0]):
+            raise InputError(f"scene aabb must be finite with max > min, got {aabb.tolist()}", field="aabb")
+        return aabb, "explicit aabb"
+    near, far = near_far_or_fallback(cameras)
+    source = "camera frusta over near/far"
+    if np.any(~np.isfinite(cameras.far)):
+        source = "camera frusta (far from camera spread: the input has no near/far)"
+    pts = frustum_points(cameras, near, far)
+    lo, hi = pts.min(0), pts.max(0)
+    pad = AABB_PAD * float((hi - lo).max())
+    frusta = np.stack([lo - pad, hi + pad])
+    observed = None if points is None or np.all(np.isfinite(cameras.far)) else aabb_from_points(points)
+    if observed is not None:
+        clipped = np.stack([np.maximum(observed[0], frusta[0]), np.minimum(observed[1], frusta[1])])
+        if np.all(clipped[1] > clipped[0]):
+            return clipped, f"observed geometry ({len(points)} surface points; the input has no near/far or aabb)"
+    return frusta, source
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    """x_n = (x_world - centre) * scale; an isotropic similarity, so angles are kept."""
+
+    centre: np.ndarray  # [3]
+    scale: float
+
+    @staticmethod
+    def from_aabb(aabb: np.ndarray) -> "SceneFrame":
+        aabb = np.asarray(aabb, dtype=np.float64)
+        half = 0.5 * (aabb[1] - aabb[0])
+        return SceneFrame(centre=0.5 * (aabb[0] + aabb[1]), scale=float(1.0 / half.max()))
+
+    def to_normalised(self, xyz: np.ndarray) -> np.ndarray:
+        """World points [..., 3] -> normalised points."""
+        return (np.asarray(xyz, np.float64) - self.centre) * self.scale
+
+    def to_world(self, xyz: np.ndarray) -> np.ndarray:
+        """Normalised points [..., 3] -> world points."""
+        return np.asarray(xyz, np.float64) / self.scale + self.centre
+
+    def to_dict(self) -> dict:
+        return {"centre": self.centre.tolist(), "scale": self.scale}
+
+    @staticmethod
+    def from_dict(data: dict) -> "SceneFrame":
+        return SceneFrame(centre=np.asarray(data["centre"], np.float64), scale=float(data["scale"]))

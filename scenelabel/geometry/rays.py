@@ -1,0 +1,89 @@
+"""Cameras -> rays, in scenelabel's conventions (docs/conventions.md).
+
+Pixel centres are at +0.5; ``directions`` are unit vectors in the world frame; a point on a ray is
+``origins + t * directions`` with ``t`` the distance along the ray.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+
+__all__ = ["pixel_grid", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
+
+DIRECTION_EPS = 1e-12
+"""Directions shorter than this cannot be normalised; :func:`normalize_directions` rejects them."""
+
+
+def pixel_grid(width: int, height: int) -> np.ndarray:
+    """Continuous coordinates of every pixel centre, row-major.
+
+    Returns:
+        [height * width, 2] float64 (u, v) = (col + 0.5, row + 0.5).
+    """
+    rows, cols = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    return np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], axis=-1).astype(np.float64)
+
+
+def camera_directions_from_pixels(
+    pixels: np.ndarray, fx: float, fy: float, cx: float, cy: float, distortion: np.ndarray | None = None
+) -> np.ndarray:
+    """Camera-frame (OpenCV axes) ray directions through continuous pixel coordinates.
+
+    Args:
+        pixels: [n, 2] (u, v) in pixels; a pixel's centre is (col + 0.5, row + 0.5).
+        fx, fy, cx, cy: pinhole intrinsics in pixels.
+        distortion: [4] OpenCV (k1, k2, p1, p2) or None; distorted pixels are undistorted with
+            ``cv2.undistortPoints`` (iterative inverse of the radial-tangential model).
+    Returns:
+        [n, 3] float64 unit directions (z forward).
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    if distortion is not None and np.any(np.asarray(distortion) != 0):
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        xy = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, np.asarray(distortion, np.float64)).reshape(-1, 2)
+    else:
+        xy = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy], axis=-1)
+    dirs = np.concatenate([xy, np.ones((len(xy), 1))], axis=-1)
+    return dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+
+
+def rays_from_cameras(cameras: Cameras, index: int, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame rays of camera ``index`` through ``pixels`` (all pixel centres when None).
+
+    Args:
+        cameras: the camera batch.
+        index: which camera.
+        pixels: [n, 2] continuous pixel coordinates, or None for every pixel centre (row-major).
+    Returns:
+        origins [n, 3], directions [n, 3] (unit), float64.
+    """
+    cam = cameras[index]
+    if pixels is None:
+        pixels = pixel_grid(int(cam.width[0]), int(cam.height[0]))
+    dirs_cam = camera_directions_from_pixels(
+        pixels, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0]
+    )
+    c2w = cam.c2w[0]
+    directions = dirs_cam @ c2w[:3, :3].T
+    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    origins = np.broadcast_to(c2w[:3, 3], directions.shape).copy()
+    return origins, directions
+
+
+def normalize_directions(directions: np.ndarray, name: str = "directions") -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions and their original lengths; zero-length or non-finite input is an error.
+
+    Args:
+        directions: [n, 3].
+    Returns:
+        unit [n, 3], norms [n].
+    """
+    norms = np.linalg.norm(directions, axis=-1)
+    bad = ~(norms > DIRECTION_EPS) | ~np.isfinite(norms)
+    if np.any(bad):
+        raise InputError(f"{int(bad.sum())} of {len(norms)} directions are zero-length or non-finite", field=name)
+    return directions / norms[:, None], norms

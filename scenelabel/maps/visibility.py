@@ -1,0 +1,360 @@
+"""Which world points the training cameras observed: projection into low-resolution depth maps.
+
+Numpy only (no torch). Conventions (docs/conventions.md): cameras are :class:`scenelabel.Cameras`
+with OpenCV axes (x right, y down, z forward) in the world frame; pixel (col, row) covers
+[col, col + 1) x [row, row + 1), its centre at (col + 0.5, row + 0.5); depth is the distance along
+the unit ray from the camera centre, and so are ``near`` and ``far``.
+
+The rule (docs/conventions.md, "Observed space"): a point ``p`` is *seen* by camera ``c`` when
+
+1. it is in front of the camera and inside its image rectangle: ``z > 0``,
+   ``0 <= u < width``, ``0 <= v < height`` with ``(u, v) = (fx x / z + cx, fy y / z + cy)``
+   (ideal pinhole: lens distortion is ignored here),
+2. its distance ``d = |p - centre|`` lies in the camera's ``[near, far]`` (unknown limits: 0, inf),
+3. it is not behind the first surface of the pixel it projects to:
+   ``d <= depth[row, col] + margin + pixel_margin * d / min(fx, fy)``, where ``depth`` is the
+   camera's depth map (``inf`` where the ray hits nothing) and the last term is ``pixel_margin``
+   pixel footprints at that distance (the depth maps are coarse).
+
+A point seen by no camera is unobserved. ``visible_from_cameras`` applies the rule to many points
+at once (vectorised over points, one pass per camera).
+
+For a map, the surfaces are the map's own: :func:`camera_surfaces` casts each (shrunk,
+:func:`scaled_cameras`) camera's pixel rays through the map's per-voxel opacities to where their
+transmittance falls to 0.5 (what a volume renderer draws there); the voxels those surfaces lie in
+are occupied besides the opaque ones (a field's surfaces are often a few voxels of fog, none
+opaque alone), and :func:`observed_voxels` applies the rule twice (docs/conventions.md,
+"Observed space"): an *occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one
+pixel footprint (a surface voxel's centre may lie up to that far behind where the pixel ray
+meets the surface); a *transparent* voxel only when its centre is in front of the surface, with
+no margin, against :func:`min_depth_over_neighbours` of each depth map (so a voxel just behind a
+silhouette or a surface is never taken for observed free space)::
+
+    small = scaled_cameras(train_cameras, DEPTH_MAP_WIDTH)
+    observed, occupied = observed_voxels(occupancy, origin, voxel_size, small)   # [nx, ny, nz] bool each
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.lattice import voxel_centers
+from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.maps.codes import OCCUPIED_THRESHOLD, uint8_from_unit
+from scenelabel.maps.raycast import transmittance_crossings
+
+__all__ = [
+    "CameraSurfaces",
+    "DEPTH_MAP_WIDTH",
+    "PIXEL_MARGIN",
+    "SQRT3",
+    "camera_surfaces",
+    "min_depth_over_neighbours",
+    "observed_centres",
+    "observed_voxels",
+    "project_points",
+    "scaled_cameras",
+    "surface_mask",
+    "visible_from_cameras",
+]
+
+DEPTH_MAP_WIDTH = 80
+"""Visibility depth maps are rendered at most this many pixels wide (height keeps the aspect)."""
+
+PIXEL_MARGIN = 1.0
+"""Extra depth tolerance, in pixel footprints of the depth map at the point's distance."""
+
+SQRT3 = math.sqrt(3.0)
+"""A voxel's diagonal over its edge: maps use ``margin = SQRT3 * voxel_size``."""
+
+
+
+
+def scaled_cameras(cameras: Cameras, max_width: int = DEPTH_MAP_WIDTH) -> Cameras:
+    """The same cameras with images shrunk to at most ``max_width`` pixels wide (never enlarged).
+
+    Per camera ``w' = max(1, round(w * s))``, ``h' = max(1, round(h * s))`` with
+    ``s = min(1, max_width / w)``; intrinsics scale per axis by ``w' / w`` and ``h' / h``, so the
+    image rectangle covers the same rays (pixel centres stay at +0.5 of the new pixels).
+    Distortion is dropped (the small images are ideal pinholes).
+
+    Args:
+        cameras: n cameras.
+        max_width: widest image allowed, pixels (>= 1).
+    Returns:
+        n cameras, zero distortion, same poses and near / far.
+    """
+    if int(max_width) < 1:
+        raise InputError(f"max_width must be >= 1, got {max_width}", field="max_width")
+    width = cameras.width.astype(np.float64)
+    height = cameras.height.astype(np.float64)
+    s = np.minimum(1.0, int(max_width) / width)  # [n]
+    new_w = np.maximum(1, np.round(width * s)).astype(np.int64)
+    new_h = np.maximum(1, np.round(height * s)).astype(np.int64)
+    sx, sy = new_w / width, new_h / height  # [n] each
+    return Cameras(
+        c2w=cameras.c2w.copy(),
+        fx=cameras.fx * sx,
+        fy=cameras.fy * sy,
+        cx=cameras.cx * sx,
+        cy=cameras.cy * sy,
+        width=new_w,
+        height=new_h,
+        distortion=np.zeros_like(cameras.distortion),
+        near=cameras.near.copy(),
+        far=cameras.far.copy(),
+    )
+
+
+def project_points(
+    points: np.ndarray, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal-pinhole projection of world points into one camera (OpenCV axes).
+
+    Args:
+        points: [N, 3] world points.
+        c2w: [4, 4] camera-to-world (OpenCV axes: x right, y down, z forward).
+        fx, fy, cx, cy: intrinsics in pixels (pixel centres at +0.5).
+    Returns:
+        uv: [N, 2] continuous pixel coordinates (NaN where ``z <= 0``: not in front).
+        z: [N] camera-frame z (forward) of each point.
+        dist: [N] distance from the camera centre, i.e. the depth along the point's unit ray.
+    """
+    rel = np.asarray(points, np.float64) - c2w[:3, 3]  # [N, 3] world offsets from the centre
+    cam = rel @ c2w[:3, :3]  # [N, 3] camera frame: R^T (p - t)
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_z = np.where(z > 0, 1.0 / z, np.nan)
+    uv = np.stack([fx * cam[:, 0] * inv_z + cx, fy * cam[:, 1] * inv_z + cy], axis=-1)
+    return uv, z, np.linalg.norm(rel, axis=-1)
+
+
+def _check_inputs(points: Any, cameras: Cameras, depth_maps: Sequence[np.ndarray], margin: float) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"points must have shape (N, 3), got {points.shape}", field="points")
+    if len(depth_maps) != len(cameras):
+        raise InputError(f"{len(cameras)} cameras but {len(depth_maps)} depth maps", field="depth_maps")
+    for i, depth in enumerate(depth_maps):
+        expected = (int(cameras.height[i]), int(cameras.width[i]))
+        if np.shape(depth) != expected:
+            raise InputError(
+                f"depth map {i} has shape {np.shape(depth)}, expected [height, width] = {list(expected)}",
+                field="depth_maps",
+            )
+    if not (math.isfinite(float(margin)) and float(margin) >= 0):
+        raise InputError(f"margin must be a finite number >= 0, got {margin!r}", field="margin")
+    return points
+
+
+def visible_from_cameras(
+    points: Any,
+    cameras: Cameras,
+    depth_maps: Sequence[np.ndarray],
+    margin: float,
+    pixel_margin: float = PIXEL_MARGIN,
+) -> np.ndarray:
+    """Which points at least one camera saw (the rule of the module docstring).
+
+    Args:
+        points: [N, 3] world points.
+        cameras: n cameras; camera i's image is ``depth_maps[i]`` (sizes must match).
+        depth_maps: n arrays [height_i, width_i]: distance along each pixel's unit ray to the
+            first surface, ``inf`` where the ray hits nothing.
+        margin: depth tolerance behind the surface, world units (maps: one voxel diagonal).
+        pixel_margin: extra tolerance in pixel footprints at the point's distance.
+    Returns:
+        [N] bool, True where some camera saw the point.
+    """
+    points = _check_inputs(points, cameras, depth_maps, margin)
+    seen = np.zeros(len(points), dtype=bool)
+    for i in range(len(cameras)):
+        todo = np.flatnonzero(~seen)  # only points no camera has seen yet
+        if todo.size == 0:
+            break
+        uv, z, dist = project_points(points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i])
+        near = cameras.near[i] if np.isfinite(cameras.near[i]) else 0.0
+        far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
+        width, height = int(cameras.width[i]), int(cameras.height[i])
+        with np.errstate(invalid="ignore"):
+            in_view = (
+                (z > 0)
+                & (uv[:, 0] >= 0) & (uv[:, 0] < width)
+                & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+                & (dist >= near) & (dist <= far)
+            )  # [n_todo]
+        hits = np.flatnonzero(in_view)
+        cols = np.floor(uv[hits, 0]).astype(np.int64)
+        rows = np.floor(uv[hits, 1]).astype(np.int64)
+        surface = np.asarray(depth_maps[i], np.float64)[rows, cols]  # [n_hits]
+        tolerance = margin + pixel_margin * dist[hits] / min(cameras.fx[i], cameras.fy[i])
+        seen[todo[hits[dist[hits] <= surface + tolerance]]] = True
+    return seen
+
+
+def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
+    """Each pixel's smallest depth over the ``size`` x ``size`` pixels around it (edges repeated).
+
+    Args:
+        depth: [h, w] depth map (``inf`` = no surface).
+        size: window edge, pixels (odd, >= 1).
+    Returns:
+        [h, w] float64, never larger than ``depth``.
+    """
+    from scipy.ndimage import minimum_filter
+
+    if int(size) < 1 or int(size) % 2 == 0:
+        raise InputError(f"size must be an odd integer >= 1, got {size!r}", field="size")
+    return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
+
+
+@dataclass(frozen=True)
+class CameraSurfaces:
+    """The surface along every pixel ray of some (small) cameras: what the visibility rule needs
+    besides the voxel centres (:func:`camera_surfaces`; a few small arrays, picklable).
+
+    Attributes:
+        cameras: n cameras (pinholes; distortion is ignored).
+        depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to its surface,
+            ``inf`` where the ray meets none.
+        front: n arrays [h_i, w_i]: :func:`min_depth_over_neighbours` of ``depth``.
+        voxels: [S, 3] int64, the distinct grid voxels those surfaces lie in (surfaces from
+            ``occluder_depth``, outside the grid, are not voxels of it).
+    """
+
+    cameras: Cameras
+    depth: list[np.ndarray]
+    front: list[np.ndarray]
+    voxels: np.ndarray
+
+
+def camera_surfaces(
+    occupancy: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    cameras: Cameras,
+    occluder_depth: Sequence[np.ndarray] | None = None,
+) -> CameraSurfaces:
+    """Cast each camera's pixel rays through a grid of per-voxel opacities, within the camera's
+    near / far: each ray's surface is where its transmittance falls to 0.5
+    (:func:`scenelabel.maps.transmittance_crossings`, the median termination depth of volume
+    rendering). The first step of :func:`observed_voxels`, the one that needs the whole grid.
+
+    Args:
+        occupancy: [nx, ny, nz] per-voxel opacity in [0, 1] (a map's ``occupancy``), or its uint8
+            codes; a bool grid is a grid of opaque voxels.
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        cameras: n cameras (use small ones, :func:`scaled_cameras`).
+        occluder_depth: optional n depth maps [h_i, w_i] of surfaces the grid does not hold (e.g.
+            outside its box); each pixel's surface is the nearer of the two.
+    Returns:
+        CameraSurfaces.
+    """
+    occupancy = np.asarray(occupancy)
+    codes = occupancy if occupancy.dtype == np.uint8 else uint8_from_unit(occupancy)  # quantised once
+    depth, voxels = [], []
+    for i in range(len(cameras)):
+        origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
+        hit, index = transmittance_crossings(origins, directions, codes, origin, voxel_size, cameras.near[i], cameras.far[i])
+        if occluder_depth is not None:
+            outside = np.asarray(occluder_depth[i], np.float64).reshape(-1)
+            occluded = outside < hit  # the pixel's surface lies outside the grid
+            hit, index = np.where(occluded, outside, hit), index[~occluded]
+        voxels.append(index[index[:, 0] >= 0])
+        depth.append(hit.reshape(int(cameras.height[i]), int(cameras.width[i])))
+    voxels = np.unique(np.concatenate(voxels), axis=0) if voxels else np.zeros((0, 3), np.int64)
+    return CameraSurfaces(cameras, depth, [min_depth_over_neighbours(d) for d in depth], voxels.reshape(-1, 3))
+
+
+def surface_mask(surfaces: CameraSurfaces, block: tuple[slice, slice, slice]) -> np.ndarray:
+    """[bi, bj, bk] bool: which voxels of a block of the grid hold a camera surface.
+
+    Args:
+        surfaces: from :func:`camera_surfaces`.
+        block: (slice_i, slice_j, slice_k) with explicit start and stop.
+    """
+    start = np.array([s.start for s in block])
+    stop = np.array([s.stop for s in block])
+    mask = np.zeros(tuple(stop - start), dtype=bool)
+    inside = np.all((surfaces.voxels >= start) & (surfaces.voxels < stop), axis=1)
+    mask[tuple((surfaces.voxels[inside] - start).T)] = True
+    return mask
+
+
+def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: CameraSurfaces) -> np.ndarray:
+    """Which voxels some camera observed, given their centres (the second step of
+    :func:`observed_voxels`, voxel by voxel, so any block of a grid at a time).
+
+    An occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
+    with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
+    sees its centre in front of the nearest surface of its 3x3 pixels (``surfaces.front``, no
+    margin).
+
+    Args:
+        centres: [V, 3] world voxel centres.
+        occupied: [V] bool, which of them are occupied.
+        voxel_size: voxel edge, world units.
+        surfaces: from :func:`camera_surfaces` over the whole grid.
+    Returns:
+        [V] bool.
+    """
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    occ = np.asarray(occupied, dtype=bool).reshape(-1)
+    if len(occ) != len(centres):
+        raise InputError(f"{len(centres)} centres but {len(occ)} occupied flags", field="occupied")
+    seen = np.empty(len(centres), dtype=bool)
+    seen[occ] = visible_from_cameras(centres[occ], surfaces.cameras, surfaces.depth, SQRT3 * voxel_size)
+    seen[~occ] = visible_from_cameras(centres[~occ], surfaces.cameras, surfaces.front, 0.0, pixel_margin=0.0)
+    return seen
+
+
+def observed_voxels(
+    occupancy: np.ndarray,
+    origin: Any,
+    voxel_size: float,
+    cameras: Cameras,
+    occluder_depth: Sequence[np.ndarray] | None = None,
+    chunk: int = 32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which voxels of a grid are occupied, and which the cameras observed (the rule of a map,
+    docs/conventions.md, "Observed space").
+
+    Each camera's pixel rays (use small cameras, :func:`scaled_cameras`) are cast through the
+    grid's opacities (:func:`camera_surfaces`). A voxel is occupied when its opacity is at least
+    :data:`scenelabel.maps.OCCUPIED_THRESHOLD` (code >= 128) or a camera's surface lies
+    in it; then every voxel is classified (:func:`observed_centres`): an occupied voxel is
+    observed when some camera sees its centre (:func:`visible_from_cameras`) with
+    ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees
+    its centre in front of the nearest surface of its 3x3 pixels
+    (:func:`min_depth_over_neighbours`, no margin).
+
+    Args:
+        occupancy: [nx, ny, nz] per-voxel opacity in [0, 1], its uint8 codes, or bool (opaque voxels).
+        origin: [3] world centre of voxel [0, 0, 0].
+        voxel_size: voxel edge, world units.
+        cameras: n cameras (pinholes; distortion is ignored).
+        occluder_depth: optional n depth maps [h_i, w_i] of surfaces the grid does not hold (e.g.
+            outside its box); each pixel's surface is the nearer of the two.
+        chunk: voxels per block edge (bounds the memory).
+    Returns:
+        observed [nx, ny, nz] bool, occupied [nx, ny, nz] bool.
+    """
+    occupancy = np.asarray(occupancy)
+    if occupancy.ndim != 3:
+        raise InputError(f"need occupancy [nx, ny, nz], got {occupancy.shape}", field="occupancy")
+    codes = occupancy if occupancy.dtype == np.uint8 else uint8_from_unit(occupancy)
+    surfaces = camera_surfaces(codes, origin, voxel_size, cameras, occluder_depth)
+    occupied = codes >= uint8_from_unit(OCCUPIED_THRESHOLD)
+    occupied[tuple(surfaces.voxels.T)] = True
+    observed = np.zeros(codes.shape, dtype=bool)
+    for sl, centres in voxel_centers(origin, voxel_size, codes.shape, chunk):
+        observed[sl] = observed_centres(centres, occupied[sl], voxel_size, surfaces).reshape(occupied[sl].shape)
+    return observed, occupied

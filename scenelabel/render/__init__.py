@@ -1,0 +1,3 @@
+"""Volume rendering: the compositing maths (volume.py), sample placement and the occupancy grid
+(sampling.py), the ray marcher that evaluates a field along rays (marcher.py), compiled lattice loops.
+"""

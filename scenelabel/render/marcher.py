@@ -1,0 +1,330 @@
+"""Render rays through a field: sampling + field evaluation + the pure rendering maths.
+
+Rays here are in the field's normalised frame (see :class:`scenelabel.geometry.frame.SceneFrame`).
+Samples in cells the occupancy grid marks empty are never evaluated (σ = 0 there).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from scenelabel.render.sampling import (
+    importance_sample,
+    march,
+    merge_intervals,
+    normalized_distances,
+    ray_aabb_intersect,
+)
+from scenelabel.render.volume import (
+    class_log_probs_from_scores,
+    class_log_probs_from_weights,
+    composite_rgb,
+    depth_at_transmittance,
+    depth_from_weights,
+    distortion_from_weights,
+    weights_from_density,
+)
+
+__all__ = [
+    "Marching",
+    "CompositeOptions",
+    "RayBundleOutput",
+    "ray_intervals",
+    "render_rays",
+    "render_rays_early_stop",
+    "render_rays_hierarchical",
+]
+
+EARLY_STOP_TRANS = 1e-4
+"""Queries stop marching a ray once its transmittance is below this (:func:`render_rays_early_stop`)."""
+
+EARLY_STOP_SEGMENT = 16
+"""Samples per ray evaluated between two transmittance checks."""
+
+OPAQUE_TRANS = 0.1
+"""``RayBundleOutput.t_opaque`` is where a ray's transmittance falls to this: past it, what the
+field holds changes a pixel by at most this fraction (the solid-interior term trains there)."""
+
+
+@dataclass(frozen=True)
+class Marching:
+    """Where samples go along a ray: equal steps of ``step`` (normalised units), or ``n_samples``
+    equal steps of disparity (the warp's spacing, :func:`scenelabel.render.sampling.march`), at most
+    ``n_samples`` per ray. Training and queries take it from :meth:`across_box`, so they march alike."""
+
+    step: float
+    n_samples: int
+
+    @classmethod
+    def across_box(cls, aabb_n: torch.Tensor, n_steps: int) -> "Marching":
+        """``n_steps`` steps across the diagonal of the box ``aabb_n`` [2, 3] (``sampling.n_steps``)."""
+        diag = float(torch.linalg.norm(aabb_n[1] - aabb_n[0]))
+        return cls(diag / n_steps, n_steps + 1)
+
+
+@dataclass(frozen=True)
+class CompositeOptions:
+    """What a render composites besides σ and classes."""
+
+    background: torch.Tensor | None = None  # [3] or [n_rays, 3] colour behind the scene; None: black
+    with_rgb: bool = True  # evaluate colour (False: density and classes only, cheaper)
+    # composite classes with detached weights, so a loss on the class probabilities does not move σ
+    detach_semantic_weights: bool = False
+
+
+NO_OPTIONS = CompositeOptions()
+
+
+@dataclass
+class RayBundleOutput:
+    """Per-ray composites (normalised frame). rgb is None when colour was not asked for."""
+
+    rgb: torch.Tensor | None  # [n_rays, 3]
+    depth: torch.Tensor  # [n_rays]
+    opacity: torch.Tensor  # [n_rays]
+    class_log_probs: torch.Tensor  # [n_rays, C]
+    n_evaluated: int  # samples the field evaluated
+    distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
+    t_opaque: torch.Tensor  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
+
+
+def ray_intervals(
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    aabb: torch.Tensor,
+    near: torch.Tensor | None = None,
+    far: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where rays are inside the scene box, intersected with an optional [near, far] (t ≥ 0).
+
+    Args:
+        origins, directions: [n_rays, 3], directions unit length.
+        aabb: [2, 3].
+        near, far: [n_rays] or None.
+    Returns:
+        t_min, t_max: [n_rays]; t_max <= t_min for rays that see nothing of the box.
+    """
+    t_min, t_max = ray_aabb_intersect(origins, directions, aabb)
+    t_min = t_min.clamp(min=0.0)
+    if near is not None:
+        t_min = torch.maximum(t_min, near)
+    if far is not None:
+        t_max = torch.minimum(t_max, far)
+    return t_min, t_max
+
+
+def render_rays(
+    field,
+    occupancy,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    marching: Marching,
+    jitter: torch.Tensor | None = None,
+    options: CompositeOptions = NO_OPTIONS,
+) -> RayBundleOutput:
+    """March rays from t_min to t_max and composite the field's outputs.
+
+    Samples are spaced as the field's warp asks (``field.warp.spacing``, :func:`scenelabel.render.sampling.march`):
+    equal steps of ``step``, or ``n_samples`` equal steps of disparity.
+
+    Args:
+        field: a SemanticField3D (callable as field(points, dirs) and field.semantics(points)).
+        occupancy: callable points [..., 3] -> bool [...], True where the field may be non-empty.
+        origins, directions: [n_rays, 3] (unit directions).
+        t_min, t_max: [n_rays] from :func:`ray_intervals`.
+        marching: the step (uniform spacing) and samples per ray.
+        jitter: [n_rays] in [0, 1) (training) or None.
+        options: background, colour or not, detached class weights (:class:`CompositeOptions`).
+    The class composite follows ``field.config.semantic_rendering``: "probs" (eq. 7) or
+    "scores" (softmax after compositing).
+    Returns:
+        RayBundleOutput.
+    """
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, jitter)  # [n_rays, S]
+    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
+    keep = (t_ends > t_starts) & occupancy(points)  # [n_rays, S]
+    rows, cols = keep.nonzero(as_tuple=True)  # row-major: each ray's samples in order
+    samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
+    return _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
+
+
+def render_rays_early_stop(
+    field,
+    occupancy,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    marching: Marching,
+    options: CompositeOptions = NO_OPTIONS,
+    *,
+    min_trans: float = EARLY_STOP_TRANS,
+    segment: int = EARLY_STOP_SEGMENT,
+) -> RayBundleOutput:
+    """:func:`render_rays` without jitter or gradients, stopping each ray once it is opaque.
+
+    The samples are marched ``segment`` at a time; after each segment a ray whose transmittance
+    T = exp(-Σ σ_i δ_i) has fallen below ``min_trans`` evaluates nothing further (its later
+    samples count as σ = 0). The composite is then the same as :func:`render_rays`' with every
+    weight after the stop dropped: at most ``min_trans`` of weight in all, so colour, class
+    probabilities and depth move by at most about ``min_trans`` times their range.
+
+    Args:
+        as :func:`render_rays`; ``min_trans``: the transmittance below which a ray stops (0:
+        never, the exact composite); ``segment``: samples per ray evaluated between checks.
+    Returns:
+        RayBundleOutput.
+    """
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, None)  # [n_rays, S]
+    n_rays, n_cols = t_starts.shape
+    with_rgb = options.with_rgb
+    optical = torch.zeros(n_rays, dtype=torch.float64, device=origins.device)  # Σ σ δ so far, per ray
+    max_optical = -math.log(min_trans) if min_trans > 0 else math.inf
+    active = torch.arange(n_rays, device=origins.device)
+    found_rows, found_cols, parts = [], [], []
+    for start in range(0, n_cols, segment):
+        if active.numel() == 0:
+            break
+        stop = min(start + segment, n_cols)
+        ts, te = t_starts[active, start:stop], t_ends[active, start:stop]  # [A, s]
+        points = _points(origins[active], directions[active], ts, te)
+        keep = (te > ts) & occupancy(points)
+        rows, cols = keep.nonzero(as_tuple=True)
+        samples = _evaluate(field, points[rows, cols], directions[active][rows], with_rgb)
+        optical.index_add_(0, active[rows], (samples[0] * (te - ts)[rows, cols]).double())
+        found_rows.append(active[rows])
+        found_cols.append(cols + start)
+        parts.append(samples)
+        active = active[optical[active] < max_optical]
+    rows = torch.cat(found_rows) if found_rows else torch.zeros(0, dtype=torch.long, device=origins.device)
+    cols = torch.cat(found_cols) if found_cols else torch.zeros_like(rows)
+    order = torch.argsort(rows * n_cols + cols)  # row-major, as render_rays packs them
+    if parts:
+        samples = tuple(None if parts[0][k] is None else torch.cat([p[k] for p in parts])[order] for k in range(3))
+    else:  # no sample at all: an empty evaluation keeps the shapes right
+        samples = _evaluate(field, origins[:0], directions[:0], with_rgb)
+    return _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), options)
+
+
+def render_rays_hierarchical(
+    coarse_field,
+    field,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    n_samples: tuple[int, int],
+    jitter: tuple[torch.Tensor, torch.Tensor] | None = None,
+    options: CompositeOptions = NO_OPTIONS,
+) -> tuple[RayBundleOutput, RayBundleOutput]:
+    """NeRF's hierarchical sampling (Mildenhall et al. 2020, sec. 5.2) with two networks.
+
+    1. ``n_coarse`` stratified intervals from t_min to t_max, in the spacing of the field's warp
+       (:func:`scenelabel.render.sampling.march` with a step of (t_max - t_min) / n_coarse per ray),
+       composited through ``coarse_field``;
+    2. ``n_fine`` distances drawn from the coarse weights (:func:`scenelabel.render.sampling.importance_sample`);
+    3. ``field`` composited at the coarse and fine distances together
+       (:func:`scenelabel.render.sampling.merge_intervals`): n_coarse + n_fine + 1 intervals.
+    No occupancy grid: every interval of positive length is evaluated.
+
+    Args:
+        coarse_field, field: SemanticField3D-like (see :func:`render_rays`).
+        origins, directions, t_min, t_max: as :func:`render_rays`.
+        n_samples: (n_coarse, n_fine).
+        jitter: (coarse [n_rays] in [0, 1), fine [n_rays, n_fine] in [0, 1)) for training, or None.
+        options: as :func:`render_rays`.
+    Returns:
+        (fine, coarse) RayBundleOutputs; n_evaluated counts each network's samples.
+    """
+    n_coarse, n_fine = n_samples
+    coarse_jitter, fine_jitter = (None, None) if jitter is None else jitter
+    t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
+    step = ((t_max - t_min).clamp(min=0.0) / n_coarse)[:, None]  # [n_rays, 1]
+    t_starts, t_ends = march(field.warp.spacing, t_min, t_max, step, n_coarse + 1, coarse_jitter)
+    coarse, sigmas = _render_intervals(coarse_field, origins, directions, (t_starts, t_ends), (t_min, t_max), options)
+    weights, _, _ = weights_from_density(sigmas.detach(), t_ends - t_starts)
+    t_fine = importance_sample(t_starts, t_ends, weights, n_fine, fine_jitter)
+    intervals = merge_intervals(t_starts, t_ends, t_fine)
+    fine, _ = _render_intervals(field, origins, directions, intervals, (t_min, t_max), options)
+    return fine, coarse
+
+
+def _render_intervals(field, origins, directions, intervals, limits, options):
+    """Evaluate ``field`` at every interval of positive length and composite: (RayBundleOutput,
+    σ [n_rays, S] with 0 at the empty intervals)."""
+    t_starts, t_ends = intervals
+    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
+    rows, cols = (t_ends > t_starts).nonzero(as_tuple=True)
+    samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
+    out = _composite(field, (rows, cols), intervals, samples, limits, options)
+    return out, t_starts.new_zeros(t_starts.shape).index_put((rows, cols), samples[0].to(t_starts.dtype))
+
+
+def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:
+    """Sample points at the interval middles: [n_rays, S, 3]."""
+    t_mids = 0.5 * (t_starts + t_ends)
+    return origins[:, None, :] + t_mids[..., None] * directions[:, None, :]
+
+
+def _evaluate(field, points: torch.Tensor, directions: torch.Tensor, with_rgb: bool):
+    """The field at [n, 3] points: (sigmas [n], rgbs [n, 3] or None, class_logits [n, C])."""
+    if with_rgb:
+        sigmas, rgbs, class_logits = field(points, directions)
+        return sigmas, rgbs, class_logits
+    sigmas, class_logits = field.semantics(points)
+    return sigmas, None, class_logits
+
+
+def _composite(field, at, intervals, samples, limits, options: CompositeOptions) -> RayBundleOutput:
+    """Composite evaluated samples (the pure maths of :mod:`scenelabel.render.volume`).
+
+    Skipped samples have σ = 0 and change nothing, so the evaluated ones are moved to the front of
+    each ray: [n_rays, K] with K the largest count, padded with zero-length intervals.
+
+    Args:
+        at: (rows, cols) [n] each, the evaluated samples, row-major (each ray's in order).
+        intervals: (t_starts, t_ends) [n_rays, S] the marched intervals.
+        samples: (sigmas [n], rgbs [n, 3] or None, class_logits [n, C]) at ``at``.
+        limits: (t_min, t_max) [n_rays] the rays' clipped intervals.
+    """
+    rows, cols = at
+    (t_starts, t_ends), (sigmas, rgbs, class_logits), (t_min, t_max) = intervals, samples, limits
+    n_rays = t_starts.shape[0]
+    counts = torch.bincount(rows, minlength=n_rays)  # [n_rays]
+    K = max(int(counts.max()) if counts.numel() else 0, 1)
+    first = torch.cumsum(counts, 0) - counts  # where each ray's samples begin in ``rows``
+    packed = (rows, torch.arange(len(rows), device=rows.device) - first[rows])
+    zeros = t_starts.new_zeros(n_rays, K)
+    starts = zeros.index_put(packed, t_starts[rows, cols])
+    ends = zeros.index_put(packed, t_ends[rows, cols])
+    t_mids = 0.5 * (starts + ends)
+    packed_sigmas = zeros.index_put(packed, sigmas.to(zeros.dtype))
+    weights, _, _ = weights_from_density(packed_sigmas, ends - starts)
+    logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
+    composite_classes = (
+        class_log_probs_from_scores if field.config.semantic_rendering == "scores" else class_log_probs_from_weights
+    )
+    rgb = None
+    if rgbs is not None:
+        rgb = composite_rgb(weights, t_starts.new_zeros(n_rays, K, 3).index_put(packed, rgbs.to(zeros.dtype)), options.background)
+    # A ray whose interval is empty (t_max < t_min: it misses the box or [near, far]) reports its
+    # t_max (≥ 0): the requested far, or where it leaves the box.
+    t_hi = t_max.clamp(min=0.0)
+    depth = depth_from_weights(weights, t_mids, torch.minimum(t_min, t_hi), t_hi)
+    s_starts, s_ends = (normalized_distances(field.warp.spacing, t, t_min, t_max) for t in (starts, ends))
+    return RayBundleOutput(
+        rgb=rgb,
+        depth=depth,
+        opacity=weights.sum(-1),
+        class_log_probs=composite_classes(weights.detach() if options.detach_semantic_weights else weights, logits),
+        n_evaluated=int(rows.shape[0]),
+        distortion=distortion_from_weights(weights, s_starts, s_ends),
+        t_opaque=depth_at_transmittance(packed_sigmas.detach(), starts, ends, OPAQUE_TRANS),
+    )

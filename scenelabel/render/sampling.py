@@ -1,0 +1,378 @@
+"""Where to evaluate the field along rays: ray/AABB clipping, uniform or disparity marching, empty-space skipping.
+
+Pure functions, plus :class:`OccupancyGrid`, a thin state holder (a bit grid over the scene box,
+refreshed from the field's density during training) whose lookup is a pure function.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+from torch import nn
+
+__all__ = [
+    "ray_aabb_intersect",
+    "march_uniform",
+    "march_disparity",
+    "march",
+    "normalized_distances",
+    "importance_sample",
+    "merge_intervals",
+    "occupied_at",
+    "cell_steps",
+    "OccupancyGrid",
+]
+
+DIR_EPS = 1e-12
+"""Direction components smaller than this are replaced by ±DIR_EPS before 1/d (slab test)."""
+
+
+def ray_aabb_intersect(
+    origins: torch.Tensor, directions: torch.Tensor, aabb: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Entry and exit distances of rays through an axis-aligned box (slab test).
+
+    Args:
+        origins: [n_rays, 3].
+        directions: [n_rays, 3] (need not be unit; t is in units of |d|).
+        aabb: [2, 3] (min corner, max corner).
+    Returns:
+        t_min, t_max: [n_rays]; a ray misses the box when t_max < max(t_min, 0).
+        Rays starting inside the box have t_min < 0.
+    """
+    d = torch.where(directions.abs() < DIR_EPS, torch.where(directions < 0, -DIR_EPS, DIR_EPS), directions)
+    inv = 1.0 / d
+    t0 = (aabb[0] - origins) * inv
+    t1 = (aabb[1] - origins) * inv
+    t_min = torch.minimum(t0, t1).amax(-1)
+    t_max = torch.maximum(t0, t1).amin(-1)
+    return t_min, t_max
+
+
+MIN_DISPARITY_T = 1e-6
+"""Disparity marching starts no closer than this (normalised units): 1 / t stays finite."""
+
+MIN_DISPARITY = 1e-30
+"""Disparities are clamped to at least this: an end at ``t_max = inf`` is 1e30, not inf (δ stays finite)."""
+
+
+def march_uniform(
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    step: float | torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fixed-step intervals from t_min to t_max, the last one cut at t_max.
+
+    Interval k spans [t_min + (k + u - 1) step, t_min + (k + u) step] clipped to [t_min, t_max],
+    with u in [0, 1) a per-ray jitter (0 for deterministic rendering). Intervals past t_max have
+    zero length and contribute nothing to rendering.
+
+    Args:
+        t_min, t_max: [n_rays] (rays that miss have t_max <= t_min: all intervals empty).
+        step: interval length: a float, or [n_rays, 1] (one per ray).
+        n_samples: intervals per ray (enough to cover the longest ray: ceil(max length / step) + 1).
+        jitter: [n_rays] in [0, 1) or None.
+    Returns:
+        t_starts, t_ends: [n_rays, n_samples].
+    """
+    k = torch.arange(n_samples, dtype=t_min.dtype, device=t_min.device)
+    u = torch.zeros_like(t_min) if jitter is None else jitter
+    t_max = torch.maximum(t_max, t_min)  # a ray that misses collapses onto t_min
+    edges = t_min[:, None] + (k[None, :] + u[:, None]) * step  # [n_rays, n_samples] interval ends
+    t_ends = torch.minimum(edges, t_max[:, None])
+    t_starts = torch.cat([t_min[:, None], t_ends[:, :-1]], dim=-1)
+    return t_starts, t_ends
+
+
+def march_disparity(
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Intervals from t_min to t_max in equal steps of disparity 1 / t (LLFF's ``lindisp``).
+
+    Interval ends sit at ``1 / t = (1 - s) / t_min + s / t_max`` with
+    ``s = min((k + u) / (n_samples - 1), 1)``, k = 0 .. n_samples - 1 and u in [0, 1) a per-ray
+    jitter (as :func:`march_uniform`, one interval more than the steps: the first starts at t_min,
+    the last ends at t_max). Ends are clamped to [t_min, t_max]. Near the camera the intervals are
+    short, far away long, as a pixel's footprint grows with distance.
+
+    Args:
+        t_min, t_max: [n_rays], ``t_min > 0`` (clamped to ``MIN_DISPARITY_T``; rays that miss
+            have t_max <= t_min: all intervals empty). ``t_max = inf`` gives 1 / t_max = 0; the
+            last end is then capped at ``1 / MIN_DISPARITY`` (finite).
+        n_samples: intervals per ray (>= 2 to reach t_max).
+        jitter: [n_rays] in [0, 1) or None.
+    Returns:
+        t_starts, t_ends: [n_rays, n_samples].
+    """
+    t_lo = t_min.clamp(min=MIN_DISPARITY_T)
+    t_max = torch.maximum(t_max, t_lo)
+    k = torch.arange(n_samples, dtype=t_min.dtype, device=t_min.device)
+    u = torch.zeros_like(t_min) if jitter is None else jitter
+    s = ((k[None, :] + u[:, None]) / max(n_samples - 1, 1)).clamp(max=1.0)  # [n_rays, n_samples]
+    inv = ((1.0 - s) / t_lo[:, None] + s / t_max[:, None]).clamp(min=MIN_DISPARITY)
+    t_ends = torch.minimum(torch.maximum(1.0 / inv, t_lo[:, None]), t_max[:, None])
+    t_starts = torch.cat([t_lo[:, None], t_ends[:, :-1]], dim=-1)
+    return t_starts, t_ends
+
+
+def march(
+    spacing: str,
+    t_min: torch.Tensor,
+    t_max: torch.Tensor,
+    step: float | torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`march_uniform` (``spacing="uniform"``, steps of ``step``: a float, or [n_rays, 1] for
+    a step per ray) or :func:`march_disparity` (``"disparity"``, ``step`` unused): the spacing a
+    field's warp asks for (``warp.spacing``)."""
+    if spacing == "disparity":
+        return march_disparity(t_min, t_max, n_samples, jitter)
+    if spacing == "uniform":
+        return march_uniform(t_min, t_max, step, n_samples, jitter)
+    raise ValueError(f"unknown spacing {spacing!r}")
+
+
+def normalized_distances(spacing: str, t: torch.Tensor, t_min: torch.Tensor, t_max: torch.Tensor) -> torch.Tensor:
+    """Distances along rays as the fraction s in [0, 1] of the way from t_min to t_max in the
+    march's spacing (the inverse of :func:`march`'s map from s to t; mip-NeRF 360's normalised
+    ray distance): ``(t - t_min) / (t_max - t_min)`` for uniform spacing, the same in disparity
+    1 / t (clamped as :func:`march_disparity` clamps) for disparity spacing.
+
+    Args:
+        spacing: "uniform" or "disparity" (a warp's ``spacing``).
+        t: [n_rays, n] distances in [t_min, t_max].
+        t_min, t_max: [n_rays].
+    Returns:
+        [n_rays, n] s, clamped to [0, 1]. A ray with an empty interval (t_max <= t_min) has no
+        samples; its s is 0 (the denominator is clamped to the smallest positive float).
+    """
+    if spacing == "disparity":
+        t_lo = t_min.clamp(min=MIN_DISPARITY_T)
+        t_hi = torch.maximum(t_max, t_lo)
+        g, g_min, g_max = (1.0 / x.clamp(min=MIN_DISPARITY_T) for x in (t, t_lo[:, None], t_hi[:, None]))
+        span, offset = g_min - g_max, g_min - g
+    elif spacing == "uniform":
+        span, offset = (t_max - t_min)[:, None], t - t_min[:, None]
+    else:
+        raise ValueError(f"unknown spacing {spacing!r}")
+    return (offset / span.clamp(min=torch.finfo(span.dtype).tiny)).clamp(0.0, 1.0)
+
+
+PDF_EPS = 1e-5
+"""Probability mass added to a ray's weights before :func:`importance_sample` draws from them,
+spread over the intervals in proportion to their length (NeRF adds 1e-5 per bin): every interval
+of positive length keeps some probability, and a ray with no weight at all samples uniformly."""
+
+
+def importance_sample(
+    t_starts: torch.Tensor,
+    t_ends: torch.Tensor,
+    weights: torch.Tensor,
+    n_samples: int,
+    jitter: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Distances drawn from the piecewise-constant density the weights put on the intervals
+    (inverse transform sampling: NeRF's hierarchical sampling, Mildenhall et al. 2020, eq. 5).
+
+    The density is p(t) = (w_i + PDF_EPS δ_i / Σ_j δ_j) / Z / δ_i inside interval i, with
+    δ_i = t_ends - t_starts; its CDF is inverted at the stratified quantiles
+    u_k = (k + jitter_k) / n_samples, so the samples come out sorted. Zero-length intervals
+    (past a ray's end) get no samples. A ray whose intervals all have zero length returns its
+    first t_start n_samples times. No gradient flows through the sampling.
+
+    Args:
+        t_starts, t_ends: [n_rays, S] sorted, non-overlapping intervals.
+        weights: [n_rays, S] ≥ 0 (e.g. a coarse render's w_i).
+        n_samples: samples per ray.
+        jitter: [n_rays, n_samples] in [0, 1) (training) or None (0.5: the middle of each stratum).
+    Returns:
+        [n_rays, n_samples] sorted distances inside the rays' intervals.
+    """
+    with torch.no_grad():
+        lengths = (t_ends - t_starts).clamp(min=0.0)  # [n_rays, S]
+        total = lengths.sum(-1, keepdim=True)
+        pdf = weights.detach().clamp(min=0.0) * (lengths > 0) + PDF_EPS * lengths / total.clamp(min=torch.finfo(lengths.dtype).tiny)
+        cdf = torch.cumsum(pdf, -1)
+        cdf = torch.cat([torch.zeros_like(cdf[:, :1]), cdf / cdf[:, -1:].clamp(min=torch.finfo(cdf.dtype).tiny)], -1)
+        k = torch.arange(n_samples, dtype=t_starts.dtype, device=t_starts.device)
+        u = (k + (0.5 if jitter is None else jitter.to(t_starts.dtype))) / n_samples  # [n_rays, n_samples]
+        u = u.expand(t_starts.shape[0], n_samples).contiguous()
+        idx = (torch.searchsorted(cdf.contiguous(), u, right=True) - 1).clamp(0, t_starts.shape[1] - 1)
+        c_lo, c_hi = cdf.gather(-1, idx), cdf.gather(-1, idx + 1)
+        frac = ((u - c_lo) / (c_hi - c_lo).clamp(min=torch.finfo(cdf.dtype).tiny)).clamp(0.0, 1.0)
+        return t_starts.gather(-1, idx) + frac * lengths.gather(-1, idx)
+
+
+def merge_intervals(t_starts: torch.Tensor, t_ends: torch.Tensor, t_new: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Split contiguous intervals at new distances: NeRF's fine samples (the coarse ones and the
+    importance samples, sorted together).
+
+    Args:
+        t_starts, t_ends: [n_rays, S] contiguous (t_starts[:, i + 1] == t_ends[:, i]).
+        t_new: [n_rays, K] distances inside [t_starts[:, 0], t_ends[:, -1]].
+    Returns:
+        t_starts, t_ends: [n_rays, S + K], covering the same span.
+    """
+    edges = torch.cat([t_starts[:, :1], t_ends, t_new.to(t_ends.dtype)], -1).sort(-1).values
+    return edges[:, :-1], edges[:, 1:]
+
+
+def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Look up a boolean occupancy grid covering ``aabb`` at ``points`` (outside -> False).
+
+    Args:
+        bits: [R, R, R] bool, indexed [i, j, k] along x, y, z.
+        aabb: [2, 3] box the grid spans.
+        points: [..., 3].
+    Returns:
+        [...] bool.
+    """
+    res = torch.tensor(bits.shape, device=points.device)
+    rel = (points - aabb[0]) / (aabb[1] - aabb[0])
+    inside = ((rel >= 0) & (rel < 1)).all(-1)
+    idx = (rel * res).long()
+    idx = torch.minimum(idx.clamp(min=0), res - 1)
+    return bits[idx[..., 0], idx[..., 1], idx[..., 2]] & inside
+
+
+REBUILD_SAMPLES = 3
+"""Points per axis and cell at which :meth:`OccupancyGrid.rebuild` evaluates the density (27 per cell)."""
+
+REBUILD_DILATE = 1
+"""Cells by which :meth:`OccupancyGrid.rebuild` grows the occupied region."""
+
+
+def cell_steps(warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int) -> float | torch.Tensor:
+    """The marching step through an occupancy-grid cell (normalised units), for its opacity threshold.
+
+    Uniform marching: the box diagonal / n_steps everywhere. Disparity marching (n_steps equal
+    steps of 1/t from near to far): a step at depth t is about t² Δ(1/t), so [resolution] per
+    slice along the cube's depth axis.
+    """
+    if warp.spacing == "disparity":
+        inv_near, inv_far = warp.inv_range.tolist()
+        s = (torch.arange(resolution) + 0.5) / resolution * 2.0 - 1.0  # slice centres along the depth axis
+        inv_t = inv_near - (s + 1.0) * 0.5 * (inv_near - inv_far)
+        return (inv_near - inv_far) / n_steps / inv_t**2
+    return float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / n_steps
+
+
+class OccupancyGrid(nn.Module):
+    """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
+
+    Each cell keeps an exponential moving average of the largest density seen at random points
+    inside it; a cell is occupied when that density could make a marching step at least
+    ``alpha_threshold`` opaque. Until the first update every cell is occupied. Cells live in
+    the warp's cube (:mod:`scenelabel.geometry.warps`): for a box warp they are boxes, for a forward warp
+    frustum slices that grow with depth.
+    """
+
+    def __init__(
+        self, warp: nn.Module, resolution: int = 64, step: float | torch.Tensor = 0.01, alpha_threshold: float = 0.005
+    ):
+        """``step``: the marching step through a cell (normalised units): a float, or [resolution]
+        per slice along the cube's third axis (disparity marching: steps grow with depth)."""
+        super().__init__()
+        self.resolution = resolution
+        self.warp = warp
+        self.register_buffer("cube", torch.tensor([[-1.0] * 3, [1.0] * 3]))
+        self.register_buffer("density", torch.full((resolution,) * 3, float("inf")))
+        self.register_buffer("bits", torch.ones((resolution,) * 3, dtype=torch.bool))
+        # σ that makes one step alpha_threshold opaque: [1, 1, 1] or [1, 1, R], broadcast over the grid
+        threshold = -math.log1p(-alpha_threshold) / torch.as_tensor(step, dtype=torch.float32)
+        self.register_buffer("sigma_threshold", threshold.reshape(1, 1, -1), persistent=False)
+
+    @classmethod
+    def for_march(
+        cls, warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int, alpha_threshold: float
+    ) -> "OccupancyGrid":
+        """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``
+        (:func:`cell_steps`): what training builds and what a loaded field rebuilds."""
+        return cls(warp, resolution, cell_steps(warp, aabb_n, resolution, n_steps), alpha_threshold)
+
+    def cell_points(self, cells: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """One random point (normalised frame) in each of ``cells`` (flat indices into the grid): [n, 3]."""
+        r = self.resolution
+        idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1)
+        u = torch.rand(idx.shape, generator=generator)
+        unit = ((idx + u) / r * 2.0 - 1.0).to(self.cube.device)
+        return self.warp.inverse(unit)
+
+    @torch.no_grad()
+    def update(
+        self,
+        density_fn: Callable[[torch.Tensor], torch.Tensor],
+        decay: float = 0.95,
+        all_cells: bool = True,
+        chunk: int = 1 << 16,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        """Refresh from ``density_fn(points [n, 3]) -> sigmas [n]`` at one random point per cell.
+
+        ``all_cells=False`` refreshes the occupied cells plus a random quarter of all cells (as
+        nerfacc does after its warm-up), which is 2-4x cheaper; the others keep their value.
+        """
+        n_cells = self.resolution**3
+        if all_cells:
+            cells = torch.arange(n_cells)
+        else:
+            random_cells = torch.randint(n_cells, (n_cells // 4,), generator=generator)
+            cells = torch.unique(torch.cat([random_cells, self.bits.flatten().nonzero().squeeze(1).cpu()]))
+        points = self.cell_points(cells, generator)
+        sigmas = torch.cat([density_fn(points[i : i + chunk]) for i in range(0, len(points), chunk)]).float()
+        density = self.density.flatten()
+        density = torch.where(torch.isinf(density), torch.zeros_like(density), density)  # inf: never refreshed
+        cells = cells.to(density.device)
+        density[cells] = torch.maximum(density[cells] * decay, sigmas.to(density.device))
+        self.density = density.reshape(self.density.shape)
+        self.bits = self.density > self.sigma_threshold
+
+    @torch.no_grad()
+    def rebuild(
+        self,
+        density_fn: Callable[[torch.Tensor], torch.Tensor],
+        samples_per_axis: int = REBUILD_SAMPLES,
+        dilate: int = REBUILD_DILATE,
+        chunk: int = 1 << 16,
+    ) -> None:
+        """Recompute every cell from ``density_fn`` as it is now (e.g. at the end of training).
+
+        A cell's density is the largest at the centres of an s x s x s lattice of sub-cells
+        (s = ``samples_per_axis``); it is occupied when that is above the threshold, and the
+        occupied cells are then grown by ``dilate`` cells in every direction. The moving average
+        of :meth:`update` keeps a cell occupied for many refreshes after its density has gone
+        (a decay of 0.95 per refresh); this grid follows the field as it is. The lattice sees
+        any surface thicker than a sub-cell, and the dilation keeps the cells beside those it
+        sees (a surface's faint edge), so what the lattice misses lies next to what it finds.
+        """
+        r, s = self.resolution, samples_per_axis
+        centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s
+        offsets = torch.stack(torch.meshgrid(centres, centres, centres, indexing="ij"), -1).reshape(1, -1, 3)  # [1, s³, 3]
+        cells = torch.arange(r**3)
+        idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()  # [r³, 3]
+        per_chunk = max(chunk // s**3, 1)
+        density = torch.empty(r**3, device=self.density.device)
+        for i in range(0, r**3, per_chunk):
+            unit = ((idx[i : i + per_chunk, None, :] + offsets) / r * 2.0 - 1.0).reshape(-1, 3)
+            sigmas = density_fn(self.warp.inverse(unit.to(self.cube.device))).float()
+            density[i : i + per_chunk] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
+        self.density = density.reshape(r, r, r)
+        bits = (self.density > self.sigma_threshold).float()[None, None]
+        if dilate > 0:
+            bits = torch.nn.functional.max_pool3d(bits, 2 * dilate + 1, stride=1, padding=dilate)
+        self.bits = bits[0, 0] > 0
+
+    def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        return occupied_at(self.bits, self.cube, self.warp(points))
+
+    @property
+    def occupied_fraction(self) -> float:
+        return float(self.bits.float().mean())

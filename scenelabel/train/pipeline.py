@@ -1,0 +1,470 @@
+"""``build``: a scene folder in; a checkpoint, metrics, renders and an occupancy map out.
+
+Orchestration on top of io, train, semantic_field and maps. Writes into the output folder:
+
+- ``checkpoint.pt``: weights + resolved config + class map + bounds + world transform + training
+  cameras (what the maps' unknown rule needs)
+- ``config.json``: the resolved config (human-readable copy)
+- ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
+- ``renders/<view>.png``: ground truth | rgb | labels | smoothed labels, for held-out views
+- ``map.zarr``: the semantic occupancy map
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import sys
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from scenelabel._files import atomic_write_bytes
+from scenelabel._version import __version__
+from scenelabel.config import BuildConfig, config_from_dict, config_to_dict, preset
+from scenelabel.data.io import load_scene
+from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
+from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
+from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
+from scenelabel.fields.model import SemanticField3D
+from scenelabel.geometry.cameras import Cameras, cameras_to_dict
+from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
+from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
+from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
+from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
+from scenelabel.query.postprocess import colorize_labels, side_by_side, smooth_class_probs
+from scenelabel.render.sampling import OccupancyGrid, march
+from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
+from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
+from scenelabel.train.trainer import Trainer, rays_for_views
+
+__all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
+
+MAP_NAME = "map.zarr"
+VOXEL_FOOTPRINT_PIXELS = 2.0
+"""The default map voxel spans this many training pixels at the typical viewing distance."""
+
+
+@dataclass
+class BuildResult:
+    field: SemanticField | None  # None on data-parallel ranks other than 0 (they write nothing)
+    metrics: dict
+    out_dir: Path
+
+
+def split_views(n_views: int, holdout: int) -> tuple[list[int], list[int]]:
+    """(train, test) indices: every ``holdout``-th view (0, h, 2h, ...) is held out; 0 = none.
+
+    Raises InputError when fewer than one training view would remain.
+    """
+    if n_views < 2:
+        raise InputError(f"a scene needs at least 2 views, got {n_views}")
+    test = [i for i in range(n_views) if holdout and i % holdout == 0]
+    train = [i for i in range(n_views) if i not in set(test)]
+    if not train:
+        raise InputError(f"holdout {holdout} leaves no training view among {n_views}")
+    return train, test
+
+
+def default_voxel_size(scene: Scene, train: list[int], aabb: np.ndarray, finest_cell: float) -> float:
+    """What the images can resolve: VOXEL_FOOTPRINT_PIXELS pixels at the median distance from the
+    training cameras to the scene centre, and never finer than the field's finest cell."""
+    cams = scene.cameras[train]
+    dist = np.linalg.norm(cams.centres - 0.5 * (aabb[0] + aabb[1]), axis=-1)
+    footprint = np.median(dist / np.sqrt(cams.fx * cams.fy))
+    return float(max(VOXEL_FOOTPRINT_PIXELS * footprint, finest_cell))
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _finest_cell(config: BuildConfig, aabb: np.ndarray) -> float:
+    """World length of the encoding's finest cell along the scene box's longest side."""
+    fc = config.field
+    res = {
+        "triplane": max(fc.resolutions),
+        "dense": fc.grid_resolution,
+        "positional": 2**fc.pe_frequencies,  # half a period of the highest frequency, in cells
+    }[fc.encoding]
+    return float((aabb[1] - aabb[0]).max() / (res - 1))
+
+
+def _class_colors(scene: Scene) -> dict[int, list[int]]:
+    colors = scene.info.get("class_colors") or {}
+    return {int(k): [int(c) for c in v] for k, v in colors.items()}
+
+
+def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: float | None, renders_dir: Path | None) -> dict:
+    """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class, and
+    each view's render time."""
+    class_ids = field.class_ids
+    ignore = scene.ignore_index
+    conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
+    conf_smooth = np.zeros_like(conf)
+    per_view, depth_errs = [], []
+    colors = field.meta.get("class_colors") or {}
+    for i in test:
+        t0 = time.perf_counter()
+        out = field.render_camera(scene.cameras, i)
+        render_seconds = time.perf_counter() - t0
+        # the smoothing is post-processing of the rendered class probabilities: no second render
+        smooth_ids = field.class_map.ids_from_channels(smooth_class_probs(out.probs, smooth_sigma).argmax(-1))
+        smoothed_label = np.where(out.label >= 0, smooth_ids, out.label)
+        gt = scene.images[i]
+        view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
+        label = scene.labels[i]
+        if label is not None:
+            conf += confusion_matrix(out.label, label, class_ids, ignore)
+            conf_smooth += confusion_matrix(smoothed_label, label, class_ids, ignore)
+            view["miou"] = miou(confusion_matrix(out.label, label, class_ids, ignore))[0]
+        depth = scene.depths[i]
+        if depth is not None:
+            err = depth_error(out.depth, depth, depth > 0)
+            view["depth_error"] = err
+            depth_errs.append(err)
+        per_view.append(view)
+        if renders_dir is not None:
+            panels = [gt, out.rgb]
+            panels = [(np.clip(p, 0, 1) * 255 + 0.5).astype(np.uint8) for p in panels]
+            if field.class_map.names != (UNLABELLED_NAME,):  # a build without labels shows colour only
+                panels += [colorize_labels(out.label, colors), colorize_labels(smoothed_label, colors)]
+            if label is not None:
+                panels.append(colorize_labels(label, colors, ignore_index=ignore))
+            Image.fromarray(side_by_side(panels)).save(renders_dir / f"{scene.names[i]}.png")
+    metrics: dict = {"n_test_views": len(test)}
+    if per_view:
+        metrics["psnr"] = float(np.mean([v["psnr"] for v in per_view]))
+        metrics["ssim"] = float(np.mean([v["ssim"] for v in per_view]))
+    if conf.sum():
+        mean_iou, per_class = miou(conf)
+        metrics["miou"] = float(mean_iou)
+        metrics["miou_smoothed"] = float(miou(conf_smooth)[0])
+        metrics["per_class_iou"] = {
+            str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
+        }
+    if depth_errs:
+        metrics["depth_error"] = float(np.mean([e["abs_rel"] for e in depth_errs]))
+        metrics["depth_error_details"] = {
+            k: float(np.mean([e[k] for e in depth_errs])) for k in depth_errs[0]
+        }
+    metrics["per_view"] = per_view
+    return metrics
+
+
+def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
+    """Load a previous checkpoint of the same scene and config into ``trainer``."""
+    ckpt = load_checkpoint(ckpt_path)
+    for key in ("class_map", "aabb_world", "train_views"):
+        if ckpt.meta.get(key) != json.loads(json.dumps(static[key])):  # as the checkpoint's JSON holds it
+            raise CheckpointError(f"{ckpt_path}: cannot resume: the checkpoint's {key} differs from this scene's")
+    trainer.load_state_dict(ckpt.training_state())
+
+
+def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: float | None = None) -> BuildConfig:
+    """The config saved with the checkpoint in ``out_dir``, with an optional new step count or budget
+    (a step count alone lifts the saved budget)."""
+    config = config_from_dict(load_checkpoint(out_dir).meta["config"])
+    if steps is not None:
+        config.train.steps = steps
+        config.train.time_budget = None
+    if time_budget is not None:
+        config.train.time_budget = time_budget
+    return config
+
+
+
+
+
+def choose_warp(kind: str, cameras: Cameras, frame: SceneFrame, aabb_n: torch.Tensor) -> BoxWarp | ForwardWarp:
+    """The field's warp (:mod:`scenelabel.geometry.warps`): ``"box"``, ``"forward"`` or ``"auto"`` (forward
+    when the training cameras are forward-facing, :func:`scenelabel.geometry.warps.forward_facing_reference`)."""
+    if kind == "box":
+        return BoxWarp(aabb_n)
+    near, far = near_far_or_fallback(cameras)
+    reference = forward_facing_reference(cameras, frustum_points(cameras, near, far))
+    if reference is None:
+        if kind == "forward":
+            raise InputError(
+                "sampling.warp is 'forward' but the training cameras are not forward-facing "
+                f"(optical axes within {FORWARD_MAX_ANGLE_DEG:g} degrees of their mean, the scene in front)"
+            )
+        return BoxWarp(aabb_n)
+    return ForwardWarp(
+        frame.to_normalised(reference["centre"]),
+        reference["rotation"],
+        reference["tan_xy"],
+        reference["near"] * frame.scale,
+        reference["far"] * frame.scale,
+    )
+
+
+def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
+    """Channels for the classes in the training masks; one "unlabelled" channel when there are none."""
+    if all(scene.labels[i] is None for i in train_idx):
+        warnings.warn(
+            "no labels in the training views: building geometry and colour only (every surface is class 0, "
+            "'unlabelled'); write labels/ with `scenelabel segment` for semantics",
+            stacklevel=3,
+        )
+        return ClassMap.unlabelled()
+    return ClassMap.from_labels([scene.labels[i] for i in train_idx], scene.classes, scene.ignore_index)
+
+
+BOUNDS_PRESET = "voxels"
+"""The coarse field fitted to find a scene's bounds when its input gives none (:func:`observed_points`):
+a direct grid (no network) places surfaces within a hundred steps, where the network presets
+still leave fog in front of far walls."""
+
+BOUNDS_OVERRIDES = {
+    "field": {"grid_resolution": 64},
+    "sampling": {"n_steps": 64},
+    "train": {"steps": 100, "batch_rays": 2048},
+}
+"""The coarse field: a 64-cell grid marched in 64 steps, 100 steps of 2048 rays (about 6 s on 2
+CPU cores for a 40-view room at 160x120)."""
+
+BOUNDS_RAYS = 20000
+"""Training rays whose ends (where the coarse field is opaque) are the observed points."""
+
+
+def _trainer(
+    scene: Scene, train_idx: list[int], class_map: ClassMap, aabb: np.ndarray, config: BuildConfig,
+    device: torch.device, context: DistContext = DistContext(),
+) -> tuple[Trainer, SceneFrame, torch.Tensor]:
+    """A trainer for a field over ``aabb`` (world): its frame, warp, model, occupancy grid and rays."""
+    frame = SceneFrame.from_aabb(aabb)
+    aabb_n = torch.as_tensor(frame.to_normalised(aabb), dtype=torch.float32)
+    warp = choose_warp(config.sampling.warp, scene.cameras[train_idx], frame, aabb_n)
+    model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+    coarse = None
+    if config.sampling.strategy == "hierarchical":  # NeRF's coarse network: the same architecture
+        coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+    sc = config.sampling
+    grid = OccupancyGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
+    rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
+    return Trainer(model, grid, rays, config, device, context, coarse), frame, aabb_n
+
+
+def observed_points(
+    scene: Scene, train_idx: list[int], class_map: ClassMap, config: BuildConfig, device: torch.device, progress: bool = False
+) -> np.ndarray:
+    """Where the training rays end in a short coarse fit: the geometry the cameras observe.
+
+    A BOUNDS_PRESET field with BOUNDS_OVERRIDES (and ``config``'s warp, background and seed) is
+    trained over the camera frusta (:func:`scenelabel.geometry.frame.aabb_from_cameras`); then
+    BOUNDS_RAYS random training rays are marched through it; each ray that gets at least half
+    opaque gives one point, at the farther of where its transmittance falls to 0.5
+    (:func:`scenelabel.render.volume.depth_at_transmittance`, the surface as the maps define it) and
+    its largest weight (:func:`scenelabel.render.volume.depth_of_max_weight`): a young field's fog in
+    front of a far wall moves the first (and the expected depth) short of the wall, and a faint
+    wall behind fog moves the second. For inputs without near/far or a box (a
+    nerfstudio transforms.json never carries them), whose frusta reach far past the scene.
+
+    Returns:
+        [k, 3] world points.
+    """
+    tc = config.train
+    coarse_config = preset(
+        BOUNDS_PRESET,
+        {
+            "field": BOUNDS_OVERRIDES["field"],
+            "sampling": {**BOUNDS_OVERRIDES["sampling"], "warp": config.sampling.warp},
+            "train": {**BOUNDS_OVERRIDES["train"], "seed": tc.seed, "background": tc.background, "holdout": tc.holdout},
+        },
+    )
+    frusta, _ = aabb_from_cameras(scene.cameras)
+    trainer, frame, _ = _trainer(scene, train_idx, class_map, frusta, coarse_config, device)
+    if progress:
+        print(
+            f"bounds: the input has no near/far or aabb: fitting them to what the cameras see ({coarse_config.train.steps} coarse steps)",
+            file=sys.stderr,
+        )
+    trainer.run(progress=progress)
+    generator = torch.Generator().manual_seed(tc.seed)
+    pick = trainer.ray_pool[torch.randint(len(trainer.ray_pool), (BOUNDS_RAYS,), generator=generator).to(device)]
+    o, d, model = trainer.rays.origins[pick], trainer.rays.directions[pick], trainer.model
+    with torch.no_grad():
+        t_min, t_max = model.warp.clip(o, d, trainer.rays.t_min[pick], trainer.rays.t_max[pick])
+        t_starts, t_ends = march(model.warp.spacing, t_min, t_max, trainer.marching.step, trainer.marching.n_samples)
+        points = o[:, None] + 0.5 * (t_starts + t_ends)[..., None] * d[:, None]
+        sigmas = model.density(points.reshape(-1, 3)).reshape(t_starts.shape) * trainer.grid(points)
+        median = depth_at_transmittance(sigmas, t_starts, t_ends)
+        mode = depth_of_max_weight(weights_from_density(sigmas, t_ends - t_starts)[0], t_starts, t_ends)
+        depth = torch.maximum(median, mode)  # inf where the ray never gets half opaque
+    hit = torch.isfinite(depth)
+    return frame.to_world((o[hit] + depth[hit, None] * d[hit]).cpu().numpy())
+
+
+def prepare_training(
+    scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext(), progress: bool = False
+) -> tuple[Trainer, dict, list[int]]:
+    """A loaded scene -> its trainer (field, grid, rays), the checkpoint's fixed record and the held-out views.
+
+    Seeds every random generator with ``config.train.seed`` first, so every data-parallel rank
+    starts from the same field. Bounds: the input's box; else, where the input has no near/far,
+    the observed geometry (:func:`observed_points`, :func:`scenelabel.geometry.frame.aabb_from_cameras`);
+    else the camera frusta over near/far. Data-parallel ranks take rank 0's bounds.
+    """
+    _seed_everything(config.train.seed)
+
+    train_idx, test_idx = split_views(len(scene), config.train.holdout)
+    class_map = _class_map(scene, train_idx)
+    points = None
+    if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
+        points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
+        _seed_everything(config.train.seed)  # the field starts as it would with given bounds
+    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points)
+    if context.distributed:
+        aabb = broadcast_array(aabb, device)
+    trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
+    finest = _finest_cell(config, aabb)
+    static = {
+        "config": config_to_dict(config),
+        "class_map": class_map.to_dict(),
+        "classes": {str(k): v for k, v in scene.classes.items()},
+        "class_colors": _class_colors(scene),
+        "frame": frame.to_dict(),
+        "aabb_world": aabb.tolist(),
+        "aabb_source": aabb_source,
+        "aabb_internal": aabb_n.tolist(),
+        "warp": trainer.model.warp.to_dict(),
+        "frame_id": scene.frame_id,
+        "world_scale": float(scene.info.get("world_scale", 1.0)),
+        "finest_cell": finest,
+        "default_voxel_size": default_voxel_size(scene, train_idx, aabb, finest),
+        "train_views": [scene.names[i] for i in train_idx],
+        "test_views": [scene.names[i] for i in test_idx],
+        TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
+        "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
+    }
+    return trainer, static, test_idx
+
+
+def _training_plan(config: BuildConfig, static: dict) -> str:
+    """One line said before training: the bounds, and how long training will take at most."""
+    tc = config.train
+    limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:g} s, whichever comes first"
+    aabb = np.asarray(static["aabb_world"])
+    size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
+    return f"bounds {size} ({static['aabb_source']}); training ({config.preset}): {limit}"
+
+
+def _training_metrics(trainer: Trainer) -> dict:
+    """What a rank knows after training: steps, time, rate, and the data-parallel layout."""
+    state, context = trainer.state, trainer.dist
+    return {
+        "scenelabel_version": __version__,
+        "preset": trainer.config.preset,
+        "steps": state.step,
+        "train_seconds": state.elapsed,
+        "steps_per_second": state.step / max(state.elapsed, 1e-9),
+        "world_size": context.world_size,
+        "rank": context.rank,
+        "rays_per_step": context.world_size * trainer.batch_rays,
+    }
+
+
+def build(
+    scene_path: str | Path | Scene,
+    out_dir: str | Path | None = None,
+    config: BuildConfig | None = None,
+    progress: bool = True,
+    device: str | None = None,
+    resume: bool = False,
+) -> BuildResult:
+    """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
+
+    Args:
+        scene_path: a scene folder (see docs/formats.md) or an already loaded Scene.
+        out_dir: output folder (default: <scene>/scenelabel).
+        config: the resolved config (default: the ``fast`` preset).
+        progress: show a progress bar.
+        device: 'cpu', 'cuda' or None (CUDA when available).
+        resume: continue from the checkpoint in ``out_dir`` (same scene; pass its config, see
+            :func:`resume_config`). Checkpoints are written atomically every
+            ``train.checkpoint_every`` steps, at the end, and on Ctrl-C.
+    Under ``torchrun`` (``WORLD_SIZE`` > 1) every process trains the same field data-parallel
+    (:mod:`scenelabel.train.distributed`); rank 0 alone writes the checkpoint, evaluates, and writes
+    metrics, renders and map; the other ranks return after training.
+
+    Returns:
+        BuildResult with the loaded SemanticField and the metrics (other ranks: no field, and
+        only the training figures).
+    """
+    config = config or preset("fast")
+    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path, config.data.downscale)
+    if config.data.scale is not None:
+        scene = scene.scaled(config.data.scale)
+    out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create the output folder: {err.strerror or err}", path=out_dir) from None
+    if not os.access(out_dir, os.W_OK):
+        raise InputError("the output folder is not writable", path=out_dir)
+    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    context, dev = init_from_env(dev)
+    ckpt_path = out_dir / CHECKPOINT_NAME
+    try:
+        trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
+
+        def payload(t: Trainer) -> Checkpoint:
+            return Checkpoint(**t.state_dict(), meta=static)
+
+        if resume:
+            _resume(trainer, ckpt_path, static)
+        if progress and context.is_main:
+            print(_training_plan(config, static), file=sys.stderr)
+        state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
+    except TrainingInterrupted as err:
+        raise TrainingInterrupted(
+            f"{err}; checkpoint saved to {ckpt_path}; continue with: scenelabel build {scene.root} --out {out_dir} --resume"
+        ) from None
+    except TrainingError as err:
+        kept = f"; the last checkpoint before the failure is kept at {ckpt_path}" if ckpt_path.exists() else ""
+        raise TrainingError(f"{err}{kept}") from None
+    finally:
+        leave(context)
+    if not context.is_main:  # rank 0 alone evaluates and writes
+        return BuildResult(field=None, metrics=_training_metrics(trainer), out_dir=out_dir)
+    save_checkpoint(ckpt_path, payload(trainer))
+    atomic_write_bytes(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2).encode())
+
+    field = SemanticField.load(out_dir, device=str(dev))
+    renders_dir = None
+    if config.output.write_renders and test_idx:
+        renders_dir = out_dir / "renders"
+        renders_dir.mkdir(exist_ok=True)
+    t0 = time.perf_counter()
+    metrics = evaluate(field, scene, test_idx, config.output.smooth_sigma, renders_dir)
+    eval_seconds = time.perf_counter() - t0
+    metrics.update(
+        {
+            **_training_metrics(trainer),
+            "eval_seconds": eval_seconds,
+            "n_train_views": len(static["train_views"]),
+            "classes": {str(k): v for k, v in field.classes.items()},
+            "history": state.history,
+        }
+    )
+    if config.output.write_map:
+        t0 = time.perf_counter()
+        occ_map = field.occupancy_map(config.output.map_voxel_size)
+        occ_map.to_zarr(out_dir / MAP_NAME)
+        metrics["map"] = {
+            "path": MAP_NAME,
+            "voxel_size": occ_map.voxel_size,
+            "shape": list(occ_map.shape),
+            "seconds": time.perf_counter() - t0,
+        }
+    atomic_write_bytes(out_dir / "metrics.json", json.dumps(metrics, indent=2, default=float).encode())
+    return BuildResult(field=field, metrics=metrics, out_dir=out_dir)

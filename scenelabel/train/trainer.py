@@ -1,0 +1,430 @@
+"""The optimisation loop: rays of the training views -> a fitted SemanticField3D + occupancy grid.
+
+Orchestration only; the maths lives in rendering.py, sampling.py and losses.py.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from scenelabel.config import RANDOM_BACKGROUND, BuildConfig
+from scenelabel.data.scene import ClassMap, Scene
+from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
+from scenelabel.fields.model import SemanticField3D
+from scenelabel.geometry.frame import SceneFrame
+from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.render.marcher import (
+    CompositeOptions,
+    Marching,
+    RayBundleOutput,
+    ray_intervals,
+    render_rays,
+    render_rays_hierarchical,
+)
+from scenelabel.render.sampling import OccupancyGrid
+from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
+from scenelabel.train.losses import (
+    class_balance_weights,
+    photometric_mse,
+    semantic_cross_entropy,
+    semantic_focal_loss,
+    solid_interior_loss,
+    total_variation_grad,
+)
+
+__all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
+
+DIVERGENCE_CHECK_STEP = 100
+"""From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
+as the mean training colour (the colour variance) has diverged and is stopped."""
+
+MSE_EMA = 0.1
+"""Weight of the newest step in the smoothed MSE used by the divergence check."""
+
+TV_SLAB = 16
+"""Vertex rows (first grid axis) of the random slab whose total variation is added each step
+(``train.tv_weight``): a stochastic estimate of the whole grid's mean, at a fraction of the cost."""
+
+SOLID_DEPTH_STEPS = 2.0
+"""The solid-interior term's points lie up to this many marching steps past where each training ray
+becomes opaque (``RayBundleOutput.t_opaque``): inside the surface it renders, thin objects included."""
+
+SOLID_START = 0.25
+"""The solid-interior term is on from this fraction of the run (:meth:`Trainer.progress`): surfaces
+first, so that the points it fills lie behind surfaces, not in early fog."""
+
+GRID_ALL_CELLS_UPDATES = 4
+"""The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
+a random quarter (each full refresh of a 64³ grid costs as much as several training steps)."""
+
+
+@dataclass
+class RayData:
+    """All rays of some views, in the normalised frame (float32 tensors)."""
+
+    origins: torch.Tensor  # [N, 3]
+    directions: torch.Tensor  # [N, 3] unit
+    t_min: torch.Tensor  # [N]
+    t_max: torch.Tensor  # [N]
+    rgb: torch.Tensor  # [N, 3]
+    channels: torch.Tensor  # [N] int64 class channel, -1 = no label
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+
+def rays_for_views(
+    scene: Scene, indices: list[int], frame: SceneFrame, class_map: ClassMap, aabb_n: torch.Tensor
+) -> RayData:
+    """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far."""
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch")}
+    for i in indices:
+        origins, directions = rays_from_cameras(scene.cameras, i)
+        n = len(origins)
+        parts["o"].append(frame.to_normalised(origins))
+        parts["d"].append(directions)
+        near, far = scene.cameras.near[i], scene.cameras.far[i]
+        parts["near"].append(np.full(n, near * frame.scale if np.isfinite(near) else 0.0))
+        parts["far"].append(np.full(n, far * frame.scale if np.isfinite(far) else np.inf))
+        parts["rgb"].append(scene.images[i].reshape(-1, 3))
+        label = scene.labels[i]
+        parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    o = torch.as_tensor(cat["o"], dtype=torch.float32)
+    d = torch.as_tensor(cat["d"], dtype=torch.float32)
+    t_min, t_max = ray_intervals(
+        o, d, aabb_n, torch.as_tensor(cat["near"], dtype=torch.float32), torch.as_tensor(cat["far"], dtype=torch.float32)
+    )
+    return RayData(
+        origins=o,
+        directions=d,
+        t_min=t_min,
+        t_max=t_max,
+        rgb=torch.as_tensor(cat["rgb"], dtype=torch.float32),
+        channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
+    )
+
+
+@dataclass
+class TrainState:
+    step: int = 0
+    elapsed: float = 0.0  # seconds of training so far (resumed runs add up)
+    history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
+
+
+class TrainingRender(nn.Module):
+    """The training render behind one ``forward``, so that
+    :class:`~torch.nn.parallel.DistributedDataParallel` can wrap it: the field and its occupancy
+    grid (:func:`render_rays`), or, with a coarse field, NeRF's two networks
+    (:func:`render_rays_hierarchical`, ``hierarchical = (n_coarse, n_fine)``)."""
+
+    def __init__(
+        self,
+        model: SemanticField3D,
+        grid: OccupancyGrid,
+        marching: Marching,
+        coarse: SemanticField3D | None = None,
+        hierarchical: tuple[int, int] = (64, 128),
+    ):
+        super().__init__()
+        self.model = model
+        self.grid = grid
+        self.marching = marching
+        self.coarse = coarse
+        self.hierarchical = hierarchical
+
+    def forward(
+        self,
+        origins: torch.Tensor,  # [n_rays, 3]
+        directions: torch.Tensor,  # [n_rays, 3]
+        t_min: torch.Tensor,  # [n_rays]
+        t_max: torch.Tensor,  # [n_rays]
+        jitter: torch.Tensor,  # [n_rays]
+        fine_jitter: torch.Tensor | None = None,  # [n_rays, n_fine], with a coarse field
+        options: CompositeOptions = CompositeOptions(),
+        solid_offsets: torch.Tensor | None = None,  # [n_rays] distances past t_opaque, or None
+    ) -> tuple[RayBundleOutput, RayBundleOutput | None, torch.Tensor | None]:
+        """(the field's render, the coarse field's render or None, σ [k] at the solid-interior
+        points ``t_opaque + solid_offsets`` of the rays that became opaque inside the box, or None)."""
+        coarse_out = None
+        if self.coarse is None:
+            out = render_rays(self.model, self.grid, origins, directions, t_min, t_max, self.marching, jitter, options)
+        else:
+            out, coarse_out = render_rays_hierarchical(
+                self.coarse, self.model, origins, directions, t_min, t_max, self.hierarchical, (jitter, fine_jitter), options
+            )
+        solid_sigmas = None
+        if solid_offsets is not None:  # inside the DDP forward, so that its gradient is averaged too
+            t = out.t_opaque + solid_offsets
+            points = origins + torch.where(torch.isfinite(t), t, 0.0)[:, None] * directions
+            aabb = self.model.aabb
+            keep = torch.isfinite(t) & ((points >= aabb[0]) & (points <= aabb[1])).all(-1)
+            solid_sigmas = self.model.density(points[keep])
+        return out, coarse_out, solid_sigmas
+
+
+class Trainer:
+    """Fits a field to the rays of the training views.
+
+    Data-parallel (``dist.world_size`` > 1, the process group joined, :mod:`scenelabel.train.distributed`):
+    each rank draws ``ceil(batch_rays / world_size)`` rays per step from its own random stream,
+    the render is wrapped in DistributedDataParallel (gradients averaged over ranks), the
+    occupancy grid is updated from the same cells on every rank and then copied from rank 0, and
+    the logged losses, the loss checks and the elapsed time (which drives the learning-rate
+    schedule and the time budget) are averaged over ranks, so every rank takes the same decisions.
+
+    Args:
+        model: the field (normalised frame).
+        grid: its occupancy grid.
+        rays: training rays.
+        config: the resolved build config.
+        device: where to train.
+        dist: this process's place in a data-parallel run (default: a single process).
+        coarse: NeRF's coarse field (``sampling.strategy == "hierarchical"``): trained beside
+            the field with the same losses, its weights choosing where the field is sampled.
+    """
+
+    def __init__(
+        self,
+        model: SemanticField3D,
+        grid: OccupancyGrid,
+        rays: RayData,
+        config: BuildConfig,
+        device: torch.device,
+        dist: DistContext = DistContext(),
+        coarse: SemanticField3D | None = None,
+    ):
+        self.model = model.to(device)
+        self.coarse = None if coarse is None else coarse.to(device)
+        self.grid = grid.to(device)
+        self.config = config
+        self.device = device
+        self.dist = dist
+        tc, sc = config.train, config.sampling
+        self.rays = RayData(**{k: v.to(device) for k, v in rays.__dict__.items()})
+        # Only rays that cross the box can be learnt from.
+        self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
+        if len(self.ray_pool) == 0:
+            raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
+        self.marching = Marching.across_box(model.aabb, sc.n_steps)
+        self.render = TrainingRender(self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine))
+        self.batch_rays = -(-tc.batch_rays // dist.world_size)  # rays per rank and step
+        if dist.distributed:
+            self.render = nn.parallel.DistributedDataParallel(
+                self.render,
+                device_ids=[device] if device.type == "cuda" else None,
+                forward_sync_buffers=False,  # the grid is synchronised after each of its updates instead
+            )
+        fused = device.type in ("cpu", "cuda")
+        fields = [self.model] + ([] if self.coarse is None else [self.coarse])
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": [p for f in fields for p in f.encoding_parameters()], "lr": tc.lr_encoding},
+                {"params": [p for f in fields for p in f.mlp_parameters()], "lr": tc.lr_mlp},
+            ],
+            betas=(0.9, 0.99),
+            eps=1e-15,  # Adam's eps: tiny, as for hash/grid encodings whose gradients are sparse
+            fused=fused,
+        )
+        self.base_lrs = [tc.lr_encoding, tc.lr_mlp]
+        self.class_weights = (
+            class_balance_weights(self.rays.channels, model.num_classes) if tc.class_balance else None
+        )
+        self.background = None if tc.background in (None, RANDOM_BACKGROUND) else torch.tensor(tc.background, device=device)
+        # the grid's random cells: the same stream on every rank; the rays: one stream per rank
+        self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
+        self.ray_generator = (
+            torch.Generator(device="cpu").manual_seed(tc.seed + 1_000_003 * (dist.rank + 1))
+            if dist.distributed
+            else self.generator
+        )
+        if tc.tv_weight > 0 and config.field.encoding != "dense":
+            raise ConfigError(f"train.tv_weight regularises a dense grid; field.encoding is {config.field.encoding!r}")
+        self.state = TrainState()
+        pool_rgb = self.rays.rgb[self.ray_pool]
+        self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
+        self.mse_ema: float | None = None
+
+    def _check_divergence(self, mse: float) -> None:
+        self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
+        if self.state.step >= DIVERGENCE_CHECK_STEP and self.mse_ema > self.mean_colour_mse:
+            raise TrainingError(
+                f"training diverged at step {self.state.step}: the photometric error ({self.mse_ema:.4g}) is worse "
+                f"than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
+            )
+
+    def _semantic_loss(self, class_log_probs: torch.Tensor, channels: torch.Tensor) -> torch.Tensor:
+        tc = self.config.train
+        if tc.semantic_loss == "focal":
+            return semantic_focal_loss(class_log_probs, channels, tc.focal_gamma, self.class_weights)
+        return semantic_cross_entropy(class_log_probs, channels, self.class_weights)
+
+    def _add_grid_tv(self) -> float:
+        """Adds train.tv_weight x the total variation of a random TV_SLAB-row slab of the field's
+        dense grid to the grid's gradient (in place: no gradient of the whole grid is made for
+        it); returns the weighted value."""
+        grid = self.model.encoding.grid
+        start = int(torch.randint(max(grid.shape[0] - TV_SLAB, 0) + 1, (1,), generator=self.generator))
+        rows = slice(start, start + TV_SLAB + 1)
+        value, grad = total_variation_grad(grid.detach()[rows])
+        weight = self.config.train.tv_weight
+        if grid.grad is None:
+            grid.grad = torch.zeros_like(grid)
+        grid.grad[rows] += weight * grad
+        return weight * float(value)
+
+    def progress(self) -> float:
+        """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
+        tc = self.config.train
+        done = self.state.step / max(tc.steps, 1)
+        if tc.time_budget:
+            done = max(done, self.state.elapsed / tc.time_budget)
+        return min(done, 1.0)
+
+    def _set_lr(self) -> None:
+        factor = self.config.train.lr_final_ratio ** self.progress()
+        for group, base in zip(self.optimizer.param_groups, self.base_lrs):
+            group["lr"] = base * factor
+
+    def train_step(self) -> dict:
+        """One optimisation step on a random batch of rays; returns the logged scalars."""
+        tc, sc = self.config.train, self.config.sampling
+        step = self.state.step
+        if step >= sc.grid_warmup and step % sc.grid_update_every == 0:
+            n_updates = (step - sc.grid_warmup) // sc.grid_update_every
+            all_cells = n_updates < GRID_ALL_CELLS_UPDATES
+            self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
+            broadcast_module_buffers(self.grid)  # identical already; rank 0's copy makes it certain
+        self._set_lr()
+        pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
+        idx = self.ray_pool[pick.to(self.device)]
+        jitter = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+        fine_jitter = None
+        if self.coarse is not None:
+            fine_jitter = torch.rand(self.batch_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
+        solid_offsets = None
+        if tc.solid_weight > 0 and self.progress() >= SOLID_START:
+            u = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+            solid_offsets = u * SOLID_DEPTH_STEPS * self.marching.step
+        r = self.rays
+        background = self.background
+        if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
+            background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
+        out, coarse_out, solid_sigmas = self.render(
+            r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, fine_jitter,
+            CompositeOptions(background, True, tc.detach_semantic_weights), solid_offsets=solid_offsets,
+        )
+        mse = photometric_mse(out.rgb, r.rgb[idx])
+        ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
+        distortion = out.distortion.mean()
+        loss = mse + tc.semantic_weight * ce + tc.distortion_weight * distortion
+        if solid_sigmas is not None:
+            loss = loss + tc.solid_weight * solid_interior_loss(solid_sigmas, self.marching.step)
+        n_evaluated = out.n_evaluated
+        if coarse_out is not None:  # NeRF: the coarse render is supervised alike (logged: the fine one)
+            loss = loss + photometric_mse(coarse_out.rgb, r.rgb[idx])
+            loss = loss + tc.semantic_weight * self._semantic_loss(coarse_out.class_log_probs, r.channels[idx])
+            n_evaluated += coarse_out.n_evaluated
+        # the checks see the mean over ranks, so that all ranks stop together
+        mse_mean, ce_mean, distortion_mean, loss_mean = all_reduce_mean(
+            torch.stack([mse, ce, distortion.to(mse.dtype), loss]).detach()
+        ).tolist()
+        if not math.isfinite(loss_mean):
+            raise TrainingError(
+                f"the loss became non-finite at step {step} (mse={mse_mean}, ce={ce_mean}); "
+                "the learning rate is probably too high for this scene"
+            )
+        self._check_divergence(mse_mean)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if tc.tv_weight > 0:
+            loss_mean += self._add_grid_tv()
+        self.optimizer.step()
+        self.state.step += 1
+        return {
+            "step": self.state.step,
+            "loss": loss_mean,
+            "mse": mse_mean,
+            "ce": ce_mean,
+            "distortion": distortion_mean,
+            "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
+            "samples_per_ray": n_evaluated / self.batch_rays,
+        }
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue training exactly where it stopped."""
+        data = {
+            "model": self.model.state_dict(),
+            "occupancy": self.grid.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.state.step,
+            "elapsed": self.state.elapsed,
+            "history": self.state.history,
+            "generator": self.generator.get_state(),
+        }
+        if self.coarse is not None:
+            data["coarse_model"] = self.coarse.state_dict()
+        return data
+
+    def load_state_dict(self, data: dict) -> None:
+        """Continue from :meth:`state_dict` output (e.g. a checkpoint's
+        :meth:`~scenelabel.fields.checkpoint.Checkpoint.training_state`)."""
+        self.model.load_state_dict(data["model"])
+        if self.coarse is not None:
+            self.coarse.load_state_dict(data["coarse_model"])
+        self.grid.load_state_dict(data["occupancy"])
+        self.optimizer.load_state_dict(data["optimizer"])
+        self.state = TrainState(step=int(data["step"]), elapsed=float(data["elapsed"]), history=list(data.get("history", [])))
+        if "generator" in data:
+            self.generator.set_state(data["generator"])
+
+    def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
+        """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
+
+        When training ends, the occupancy grid is rebuilt from the final field
+        (:meth:`~scenelabel.render.sampling.OccupancyGrid.rebuild`). On Ctrl-C it calls
+        ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
+        Data-parallel: only rank 0 shows progress and calls ``on_checkpoint``.
+        """
+        tc = self.config.train
+        start = time.perf_counter() - self.state.elapsed
+        if not self.dist.is_main:
+            on_checkpoint, progress = None, False
+        self.render.train()
+        bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
+        try:
+            while self.state.step < tc.steps:
+                logs = self.train_step()
+                elapsed = time.perf_counter() - start
+                if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
+                    elapsed = float(all_reduce_mean(torch.tensor([elapsed], dtype=torch.float64, device=self.device))[0])
+                self.state.elapsed = elapsed
+                if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
+                    logs["time"] = self.state.elapsed
+                    self.state.history.append(logs)
+                    bar.set_postfix(loss=f"{logs['loss']:.4f}", psnr=f"{logs['psnr']:.1f}", spr=f"{logs['samples_per_ray']:.0f}")
+                bar.update(1)
+                if on_checkpoint is not None and self.state.step % tc.checkpoint_every == 0:
+                    on_checkpoint(self)
+                if tc.time_budget is not None and self.state.elapsed >= tc.time_budget:
+                    bar.write(f"time budget of {tc.time_budget:g} s reached after {self.state.step} steps")
+                    break
+            # queries and maps skip space by the grid of the final field, not the lagging average
+            self.grid.rebuild(self.model.density)
+            broadcast_module_buffers(self.grid)
+        except KeyboardInterrupt:
+            if on_checkpoint is not None:
+                on_checkpoint(self)
+            raise TrainingInterrupted(f"interrupted at step {self.state.step}") from None
+        finally:
+            bar.close()
+            self.render.eval()
+        return self.state
