@@ -25,6 +25,7 @@ Typical use by an exporter that evaluates a field in bounded memory::
 
 from __future__ import annotations
 
+from scenelabel.geometry.boxes import ray_box_distances
 from scenelabel.geometry.lattice import (
     DEFAULT_CHUNKS,
     block_centers,
@@ -87,7 +88,6 @@ from scenelabel.maps.pyramid import (
 from scenelabel.maps.raycast import (
     MapRayQuery,
     first_voxel_hits,
-    ray_box_distances,
     transmittance_crossings,
 )
 from scenelabel.maps.schema import (

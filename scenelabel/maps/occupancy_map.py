@@ -36,6 +36,7 @@ import numpy as np
 
 from scenelabel._version import __version__
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import ray_box_distances
 from scenelabel.geometry.lattice import index_from_world, positive, vec3, world_from_grid_matrix, world_from_index
 from scenelabel.maps.codes import (
     CONFIDENCE_ARRAY,
@@ -66,8 +67,9 @@ from scenelabel.maps.codes import (
     UNKNOWN_RULES,
     UNKNOWN_WORD,
 )
+from scenelabel.maps.esdf import distance_at, distance_gradient_at, signed_distance
 from scenelabel.maps.pyramid import check_factor, check_levels, pool_block
-from scenelabel.maps.raycast import MapRayQuery, first_voxel_hits, ray_box_distances, ray_limits
+from scenelabel.maps.raycast import MapRayQuery, first_voxel_hits, ray_limits
 from scenelabel.maps.validation import (
     check_classes,
     check_colors,
@@ -234,6 +236,25 @@ class OccupancyMap:
         out = np.zeros(inside.shape, dtype=OCCUPANCY_DTYPE)
         out[inside] = self.occupancy[tuple(idx[inside].T)]
         return out
+
+    def esdf(self, unknown: str = "occupied") -> np.ndarray:
+        """The map's Euclidean signed distance field [nx, ny, nz] float32, world units: distance of
+        each voxel centre to the nearest obstacle face, negative inside obstacles; UNKNOWN voxels and
+        the map's outside count as obstacles (``unknown="occupied"``) or UNKNOWN as free space
+        (``"free"``). :mod:`scenelabel.maps.esdf` has the rule; computed once per rule (read-only)."""
+        cache = self.__dict__.setdefault("_esdf", {})
+        if unknown not in cache:
+            cache[unknown] = read_only(signed_distance(self.label, self.voxel_size, unknown))
+        return cache[unknown]
+
+    def distance(self, xyz: Any, unknown: str = "occupied") -> np.ndarray:
+        """ESDF at world points [N, 3] -> [N] float64, trilinear between voxel centres (:meth:`esdf`)."""
+        return distance_at(self.esdf(unknown), self.origin, self.voxel_size, xyz)
+
+    def distance_gradient(self, xyz: Any, unknown: str = "occupied") -> np.ndarray:
+        """Gradient of :meth:`distance` at world points [N, 3] -> [N, 3] float64 (the direction
+        away from the nearest obstacle, for gradient-based planners)."""
+        return distance_gradient_at(self.esdf(unknown), self.origin, self.voxel_size, xyz)
 
     def cast_rays(self, origins: Any, directions: Any, near: Any = None, far: Any = None) -> MapRayQuery:
         """What each ray meets first in the map, and how far: numpy only, no field needed.

@@ -12,38 +12,15 @@ from typing import Any
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import ray_box_distances
 from scenelabel.maps.codes import QUANTISATION_STEPS, QUANTISED_DTYPE, uint8_from_unit
 
 __all__ = [
-    "ray_box_distances",
     "ray_limits",
     "first_voxel_hits",
     "transmittance_crossings",
     "MapRayQuery",
 ]
-
-
-def ray_box_distances(origins: Any, directions: Any, lo: Any, hi: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Where rays cross the box [lo, hi] (slab test, rays extended both ways).
-
-    Args:
-        origins, directions: [R, 3] rays (directions need not be unit; distances are in
-            multiples of them; zero components are fine).
-        lo, hi: [3] box corners.
-    Returns:
-        t_enter, t_exit: [R] float64; ``t_exit < t_enter`` where the line misses the box.
-    """
-    origins = np.asarray(origins, dtype=np.float64)
-    directions = np.asarray(directions, dtype=np.float64)
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta = (lo - origins) / directions  # [R, 3]
-        tb = (hi - origins) / directions
-    parallel = directions == 0
-    within = (origins >= lo) & (origins <= hi)
-    t_lo = np.where(parallel, np.where(within, -np.inf, np.inf), np.minimum(ta, tb))
-    t_hi = np.where(parallel, np.where(within, np.inf, -np.inf), np.maximum(ta, tb))
-    return t_lo.max(-1), t_hi.min(-1)
 
 
 def ray_limits(n: int, near: Any, far: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -25,14 +25,13 @@ __all__ = [
     "OccupancyGrid",
 ]
 
-DIR_EPS = 1e-12
-"""Direction components smaller than this are replaced by ±DIR_EPS before 1/d (slab test)."""
 
 
 def ray_aabb_intersect(
     origins: torch.Tensor, directions: torch.Tensor, aabb: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Entry and exit distances of rays through an axis-aligned box (slab test).
+    """Entry and exit distances of rays through an axis-aligned box: the slab rule of
+    :mod:`scenelabel.geometry.boxes` (a zero direction component decided exactly, no eps), for tensors.
 
     Args:
         origins: [n_rays, 3].
@@ -42,12 +41,14 @@ def ray_aabb_intersect(
         t_min, t_max: [n_rays]; a ray misses the box when t_max < max(t_min, 0).
         Rays starting inside the box have t_min < 0.
     """
-    d = torch.where(directions.abs() < DIR_EPS, torch.where(directions < 0, -DIR_EPS, DIR_EPS), directions)
-    inv = 1.0 / d
-    t0 = (aabb[0] - origins) * inv
-    t1 = (aabb[1] - origins) * inv
-    t_min = torch.minimum(t0, t1).amax(-1)
-    t_max = torch.maximum(t0, t1).amin(-1)
+    lo, hi = aabb[0], aabb[1]
+    ta = (lo - origins) / directions  # ±inf or nan where a component is 0: replaced below
+    tb = (hi - origins) / directions
+    parallel = directions == 0
+    within = (origins >= lo) & (origins <= hi)
+    inf = torch.full_like(ta, float("inf"))
+    t_min = torch.where(parallel, torch.where(within, -inf, inf), torch.minimum(ta, tb)).amax(-1)
+    t_max = torch.where(parallel, torch.where(within, inf, -inf), torch.maximum(ta, tb)).amin(-1)
     return t_min, t_max
 
 

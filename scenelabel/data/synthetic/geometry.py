@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import slab_distances
 
 __all__ = [
     "BACKGROUND_ID",
@@ -126,21 +127,12 @@ class RayHits(NamedTuple):
 
 
 def _ray_box(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """Slab test of n rays against one box.
+    """n rays against one box (the slab rule of :mod:`scenelabel.geometry.boxes`).
 
     Returns (t [n] first surface crossing ahead of the origin, inf if none; axis [n] of the
     crossed face). A ray starting inside the box hits the box's inside at its exit face.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - origins) / directions  # [n, 3]
-        t2 = (hi - origins) / directions
-    t_enter = np.minimum(t1, t2)
-    t_exit = np.maximum(t1, t2)
-    parallel = directions == 0
-    if parallel.any():
-        inside_slab = (origins >= lo) & (origins <= hi)
-        t_enter = np.where(parallel, np.where(inside_slab, -np.inf, np.inf), t_enter)
-        t_exit = np.where(parallel, np.where(inside_slab, np.inf, -np.inf), t_exit)
+    t_enter, t_exit = slab_distances(origins, directions, lo, hi)  # [n, 3] per axis
     enter_axis = t_enter.argmax(axis=1)
     exit_axis = t_exit.argmin(axis=1)
     t_near = np.take_along_axis(t_enter, enter_axis[:, None], 1)[:, 0]
