@@ -184,6 +184,26 @@ def _cmd_demo(args: argparse.Namespace) -> None:
 
 
 EXPORT_FORMATS = ("zarr", "ply", "mesh", "nav2")
+FORMAT_OF_SUFFIX = {".zarr": "zarr", ".ply": "ply"}
+"""The export formats an output's name says by itself (mesh: a folder, nav2: a path stem)."""
+
+
+def export_format(requested: str | None, out: Path) -> str:
+    """The format of ``export ... OUT``: ``--format`` when given, else the one OUT's suffix says
+    (:data:`FORMAT_OF_SUFFIX`); a suffix that names another format than ``--format`` is an error,
+    as is an OUT whose name says none when ``--format`` is not given."""
+    named = FORMAT_OF_SUFFIX.get(out.suffix.lower())
+    if requested is None:
+        if named is None:
+            raise InputError(
+                "cannot tell the format from the name: end OUT in .zarr or .ply, or give --format mesh (a folder) "
+                "or --format nav2 (a path stem)",
+                path=out,
+            )
+        return named
+    if named is not None and named != requested:
+        raise InputError(f"--format {requested}, but the name ends in {out.suffix} (a {named} file): rename OUT or drop --format", path=out)
+    return requested
 
 
 def _is_build(source: Path) -> bool:
@@ -248,6 +268,7 @@ def _cmd_export(args: argparse.Namespace) -> None:
     from scenelabel.maps import exports
 
     source, out = Path(args.source), Path(args.out)
+    args.format = export_format(args.format, out)
     if args.format == "zarr" and _is_build(source):
         _export_chunked(args, source, out)
         return
@@ -341,7 +362,9 @@ def make_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("source", metavar="BUILD_OR_MAP", help="build folder (with checkpoint.pt) or occupancy map (.zarr folder)")
     p.add_argument("out", metavar="OUT", help="output path (see the formats)")
-    p.add_argument("--format", choices=EXPORT_FORMATS, default="zarr", help="output format (default: zarr)")
+    p.add_argument(
+        "--format", choices=EXPORT_FORMATS, help="output format (default: from OUT's name: .zarr -> zarr, .ply -> ply)"
+    )
     p.add_argument("--voxel-size", type=float, help="voxel size in world units, for a build folder (default: from the images)")
     p.add_argument("--zarr-format", type=int, choices=(2, 3), default=3, help="zarr format version (--format zarr)")
     p.add_argument("--z-min", type=float, help="nav2: bottom of the height band, world z (default: one voxel above the floor)")

@@ -129,6 +129,9 @@ class TrainConfig:
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
     # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off)
     distortion_weight: float = 0.0
+    # the distortion loss is on from this fraction of the run (Trainer.progress): surfaces form
+    # first, then their weight gathers (0: from the start)
+    distortion_start: float = 0.0
     # weight of the solid-interior term (losses.solid_interior_loss): density pushed up just past
     # where each ray becomes opaque, so that points inside walls and furniture read occupied (0: off)
     solid_weight: float = 0.0
@@ -159,6 +162,9 @@ class TrainConfig:
             raise ConfigError(f"train.background must be 3 numbers in [0, 1], \"random\" or null, got {bg!r}")
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
+        start = self.distortion_start
+        if isinstance(start, bool) or not (isinstance(start, (int, float)) and 0 <= start <= 1):
+            raise ConfigError(f"train.distortion_start must be a fraction in [0, 1], got {start!r}")
         for name in ("distortion_weight", "tv_weight", "solid_weight"):
             w = getattr(self, name)
             if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):

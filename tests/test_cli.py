@@ -72,8 +72,10 @@ def test_export_every_format_from_a_map(box_map, tmp_path):
     proc = run_cli("export", box_map, tmp_path / "plan", "--format", "nav2", "--robot-height", "0.3")
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "plan.pgm").read_bytes().startswith(b"P5\n8 6\n255\n")
-    proc = run_cli("export", box_map, tmp_path / "again.zarr")  # zarr is the default format
+    proc = run_cli("export", box_map, tmp_path / "again.zarr")  # the format from the name
     assert proc.returncode == 0 and (tmp_path / "again.zarr" / "zarr.json").exists()
+    proc = run_cli("export", box_map, tmp_path / "again.ply")
+    assert proc.returncode == 0 and (tmp_path / "again.ply").read_bytes().startswith(b"ply\n")
 
 
 def test_export_user_errors_exit_2(box_map, tmp_path):
@@ -86,6 +88,10 @@ def test_export_user_errors_exit_2(box_map, tmp_path):
     assert proc.returncode == 2 and "--voxel-size applies to a build folder" in proc.stderr
     proc = run_cli("export", box_map, tmp_path / "points.txt", "--format", "ply")
     assert proc.returncode == 2 and ".ply" in proc.stderr
+    proc = run_cli("export", box_map, tmp_path / "out.ply", "--format", "zarr")  # a name that says another format
+    assert proc.returncode == 2 and "--format zarr, but the name ends in .ply" in proc.stderr
+    proc = run_cli("export", box_map, tmp_path / "plan")  # a name that says no format
+    assert proc.returncode == 2 and "cannot tell the format" in proc.stderr and not (tmp_path / "plan").exists()
     proc = run_cli("export", box_map, tmp_path / "plan", "--format", "nav2", "--z-min", "0.3", "--z-max", "0.1")
     assert proc.returncode == 2 and "z_min < z_max" in proc.stderr
 

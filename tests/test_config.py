@@ -43,12 +43,14 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"solid_weight": -1.0}},
         {"train": {"solid_weight": float("inf")}},
         {"train": {"background": "blue"}},
+        {"train": {"distortion_start": 1.5}},
+        {"train": {"distortion_start": -0.1}},
         {"train": {"background": [1.0, 2.0, 0.0]}},
         {"train": {"background": [1.0, 1.0]}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|background"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|background|distortion_start"):
         preset("fast", overrides)
 
 

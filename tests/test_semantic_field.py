@@ -264,3 +264,18 @@ def test_render_keeps_rays_within_near_far_and_render_camera_passes_the_cameras_
     np.testing.assert_array_equal(got.depth, want.depth)
     unbounded = field.render_camera(type(cams)(**{**vars(cams), "near": np.full(len(cams), np.nan), "far": np.full(len(cams), np.inf)}), 0)
     assert not np.array_equal(unbounded.depth, got.depth)
+
+
+def test_reprs_are_one_short_line(field):
+    """print() of a field, its baked twin, answers and maps says what they are, not their arrays."""
+    from scenelabel import BakedField
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(field.aabb[0], field.aabb[1], (5000, 3))
+    answers = [field, BakedField.from_field(field), field.query_points(xyz), field.query_rays(xyz, np.tile([1.0, 0, 0], (5000, 1)))]
+    answers.append(field.occupancy_map(0.2))
+    for obj in answers:
+        text = repr(obj)
+        assert "\n" not in text and len(text) < 400 and text.startswith(type(obj).__name__ + "("), text
+    assert "points=5000" in repr(answers[2]) and "rays=5000" in repr(answers[3])
+    assert f"voxel_size={0.2:g}" in repr(answers[4])

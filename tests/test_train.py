@@ -105,6 +105,16 @@ def test_distortion_loss_gathers_the_weights_along_rays(scene):
     assert final[0.05] < final[0.0]
 
 
+def test_distortion_starts_at_its_fraction_of_the_run(scene):
+    """train.distortion_start: the term is out of the loss before that fraction of the steps, in it after."""
+    config = preset("quick", {"train": {"steps": 40, "distortion_weight": 0.05, "distortion_start": 0.5}})
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    logs = [trainer.train_step() for _ in range(40)]
+    without = [log["loss"] - (log["mse"] + config.train.semantic_weight * log["ce"]) for log in logs]
+    assert max(abs(x) for x in without[:20]) < 1e-6
+    assert all(x > 0 for x in without[20:])
+
+
 def test_total_variation_smooths_a_dense_grid(scene):
     """train.tv_weight adds the squared total variation of the dense grid (a random slab of it) to
     the loss: from the same start, the grid ends smoother than without it."""

@@ -40,6 +40,8 @@ VARIANTS: dict[str, dict] = {
     "voxels": {"preset": "voxels"},
     "random-bg": {"train": {"background": "random"}},
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
+    "distortion-late": {"train": {"distortion_weight": 0.002, "distortion_start": 0.3}},
+    "distortion-0.0005": {"train": {"distortion_weight": 0.0005}},
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (

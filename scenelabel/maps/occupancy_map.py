@@ -348,6 +348,15 @@ class OccupancyMap:
 
     __hash__ = None  # type: ignore[assignment]
 
+    def __repr__(self) -> str:
+        lo, hi = self.bounds
+        occupied, unknown = int((self.label >= 0).sum()), int((self.label == UNKNOWN).sum())
+        return (
+            f"OccupancyMap(shape={self.shape}, voxel_size={self.voxel_size:g}, bounds={np.round(lo, 3).tolist()} to "
+            f"{np.round(hi, 3).tolist()} {self.units}, classes={len(self.classes)}, occupied={occupied}, "
+            f"unknown={unknown} ({self.unknown_rule}), probs={self.probs is not None})"
+        )
+
     # ---- zarr ----
 
     def attributes(self) -> dict[str, Any]:

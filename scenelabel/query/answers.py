@@ -33,6 +33,9 @@ class PointQuery:
     class_ids: np.ndarray  # [C] external class id of each column of probs
     label: np.ndarray  # [N] int
 
+    def __repr__(self) -> str:
+        return _summary("PointQuery", self, "points")
+
 
 @dataclass
 class RayQuery:
@@ -46,6 +49,9 @@ class RayQuery:
     class_ids: np.ndarray  # [C]
     label: np.ndarray  # [N]
 
+    def __repr__(self) -> str:
+        return _summary("RayQuery", self, "rays")
+
 
 @dataclass
 class RenderResult:
@@ -56,6 +62,16 @@ class RenderResult:
     opacity: np.ndarray  # [H, W]
     probs: np.ndarray  # [H, W, C] (smoothed when smooth_sigma was given)
     label: np.ndarray  # [H, W] class ids; FREE / UNKNOWN where nothing was hit
+
+
+def _summary(name: str, answers, count_field: str) -> str:
+    """A one-line repr of an answer: how many, over which classes, and its labels' counts."""
+    label = np.asarray(answers.label)
+    codes, counts = np.unique(label, return_counts=True)
+    named = {FREE: "FREE", UNKNOWN: "UNKNOWN"}
+    tally = ", ".join(f"{named.get(int(c), int(c))}: {int(n)}" for c, n in zip(codes[:8], counts[:8]))
+    more = ", ..." if len(codes) > 8 else ""
+    return f"{name}({count_field}={label.size}, classes={np.asarray(answers.class_ids).tolist()}, labels={{{tally}{more}}})"
 
 
 def softmax64(logits: np.ndarray) -> np.ndarray:

@@ -221,6 +221,12 @@ class BakedField:
         self.density.setflags(write=False)
         self.class_values.setflags(write=False)
 
+    def __repr__(self) -> str:
+        return (
+            f"BakedField(vertices={self.density.shape}, voxel_size={self.voxel_size:.4g}, classes={self.classes}, "
+            f"{self.density.nbytes + self.class_values.nbytes:,} bytes)"
+        )
+
     @classmethod
     def from_field(cls, field: SemanticField, voxel_size: float | None = None) -> "BakedField":
         """Evaluate ``field`` at the vertices of a lattice over its modelled bounds.

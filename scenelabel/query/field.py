@@ -84,6 +84,13 @@ class SemanticField:
         self._aabb_n = model.aabb  # normalised-frame box
         self.marching = Marching.across_box(self._aabb_n, self.config.sampling.n_steps)  # as in training
 
+    def __repr__(self) -> str:
+        lo, hi = self.aabb
+        return (
+            f"SemanticField(classes={self.classes}, bounds={np.round(lo, 3).tolist()} to {np.round(hi, 3).tolist()}, "
+            f"default_voxel_size={self.default_voxel_size():.4g}, preset={self.config.preset!r}, device={self.device})"
+        )
+
     # ------------------------------------------------------------------ construction
     @staticmethod
     def load(path: str | Path, device: str | torch.device | None = None) -> "SemanticField":

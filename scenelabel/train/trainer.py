@@ -325,7 +325,8 @@ class Trainer:
         mse = photometric_mse(out.rgb, r.rgb[idx])
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
-        loss = mse + tc.semantic_weight * ce + tc.distortion_weight * distortion
+        distortion_weight = tc.distortion_weight if self.progress() >= tc.distortion_start else 0.0
+        loss = mse + tc.semantic_weight * ce + distortion_weight * distortion
         if solid_sigmas is not None:
             loss = loss + tc.solid_weight * solid_interior_loss(solid_sigmas, self.marching.step)
         n_evaluated = out.n_evaluated
