@@ -55,6 +55,7 @@ def _lockstep_worker(rank: int, world_size: int, init_file: str, scene_dir: str,
             dist.all_gather(gathered, state)
             identical.append(all(torch.equal(g, gathered[0]) for g in gathered))
         Path(out).write_text(json.dumps({"identical": identical, "picks_differ": picks_differ, "steps": trainer.state.step}))
+        dist.barrier()  # both ranks done before either tears gloo down (a rank leaving early can abort the other)
     finally:
         dist.destroy_process_group()
 
