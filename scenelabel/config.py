@@ -93,12 +93,12 @@ class SamplingConfig:
 
     n_steps: int = 192  # marching steps across the scene box diagonal (sets the step size); disparity: per ray
     warp: str = "auto"  # box: uniform cells over the scene box | forward: frustum cells, disparity steps (LLFF-style) | auto
-    grid_resolution: int = 64  # occupancy grid side
+    grid_resolution: int = 64  # density grid side
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
     chunk_rays: int = 4096  # rays per chunk when rendering outside training
-    # grid: march n_steps, skipping cells the occupancy grid holds empty | hierarchical: NeRF's
+    # grid: march n_steps, skipping cells the density grid holds empty | hierarchical: NeRF's
     # coarse + fine networks (n_coarse stratified samples, n_fine more drawn from the coarse weights)
     strategy: str = "grid"
     n_coarse: int = 64

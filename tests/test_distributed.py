@@ -61,7 +61,7 @@ def _lockstep_worker(rank: int, world_size: int, init_file: str, scene_dir: str,
 
 
 def test_two_gloo_processes_train_in_lockstep(tmp_path):
-    """Parameters and the occupancy grid are bit-identical on both ranks after every step, while
+    """Parameters and the density grid are bit-identical on both ranks after every step, while
     each rank draws different rays."""
     from scenelabel import write_toy_scene
 

@@ -78,7 +78,7 @@ def test_query_rays_depth_and_label(toy_build):
 
 
 def test_the_final_grid_skips_space_without_changing_what_rays_hit(toy_build):
-    """The occupancy grid rebuilt from the final field (OccupancyGrid.rebuild) against evaluating
+    """The density grid rebuilt from the final field (DensityGrid.rebuild) against evaluating
     the field at every sample: the same labels and depths, with most of the box skipped."""
     field = SemanticField.load(toy_build.out_dir)
     rng = np.random.default_rng(0)

@@ -8,7 +8,7 @@ from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.config import FieldConfig
 from scenelabel.errors import ConfigError
 from scenelabel.fields.encodings import trilinear_from_grid
-from scenelabel.fields.model import SemanticField3D, SkipMLP, combine_class_densities
+from scenelabel.fields.model import FieldNetwork, SkipMLP, combine_class_densities
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 VARIANTS = [
@@ -39,7 +39,7 @@ NETWORKS = {"mlp": {"resolutions": (8,), "hidden": 16}, "direct": {"encoding": "
 @pytest.mark.parametrize("n_classes", [1, 2, 255])
 def test_heads_give_probabilities_that_sum_to_one(head, n_classes, network):
     torch.manual_seed(0)
-    model = SemanticField3D(FieldConfig(**NETWORKS[network], class_head=head), n_classes, AABB)
+    model = FieldNetwork(FieldConfig(**NETWORKS[network], class_head=head), n_classes, AABB)
     if network == "direct":  # a trained grid is not all zeros
         with torch.no_grad():
             model.encoding.grid.normal_(0.0, 3.0)
@@ -55,7 +55,7 @@ def test_density_head_probabilities_are_density_shares():
     """eq. 5 with f = sum: softmax(s)_j = σ_j / Σ σ_k and σ = Σ σ_j."""
     torch.manual_seed(1)
     config = FieldConfig(resolutions=(8,), hidden=16, class_head="density", density_combine="sum")
-    model = SemanticField3D(config, 4, AABB)
+    model = FieldNetwork(config, 4, AABB)
     pts = torch.rand(50, 3) * 2 - 1
     out = model.trunk(model.encoding(model.warp(pts)))
     class_sigmas = torch.exp(out[:, :4] + config.density_bias).double()
@@ -112,7 +112,7 @@ def test_skip_mlp_matches_a_hand_written_forward():
 @pytest.mark.parametrize("name", ["paper", "multihead", "tiny", "dense"])
 def test_model_family_presets_build_a_field(name):
     config = preset(name).field
-    model = SemanticField3D(config, 3, AABB)
+    model = FieldNetwork(config, 3, AABB)
     pts = torch.rand(10, 3) * 2 - 1
     sigmas, rgbs, logits = model(pts, torch.nn.functional.normalize(torch.randn(10, 3), dim=-1))
     assert sigmas.shape == (10,) and rgbs.shape == (10, 3) and logits.shape == (10, 3)
@@ -131,7 +131,7 @@ def test_direct_head_activates_the_grid_channels(class_head):
     torch.manual_seed(3)
     config = FieldConfig(encoding="dense", head="direct", view_dependent=False, grid_resolution=6, class_head=class_head)
     n_classes = 4
-    model = SemanticField3D(config, n_classes, AABB)
+    model = FieldNetwork(config, n_classes, AABB)
     n_density = n_classes if class_head == "density" else 1
     n_logits = n_classes if class_head == "linear" else 0
     assert model.encoding.grid.shape == (7, 7, 7, n_density + 3 + n_logits)

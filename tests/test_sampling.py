@@ -1,4 +1,4 @@
-"""Ray/AABB clipping, uniform marching and the occupancy grid, against naive references."""
+"""Ray/AABB clipping, uniform marching and the density grid, against naive references."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,7 @@ from scenelabel.render.sampling import (
     MIN_DISPARITY,
     MIN_DISPARITY_T,
     PDF_EPS,
-    OccupancyGrid,
+    DensityGrid,
     importance_sample,
     march,
     march_disparity,
@@ -76,7 +76,7 @@ def test_occupied_at_indexing_and_outside():
 
 def test_grid_update_marks_dense_cells_only():
     aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
-    grid = OccupancyGrid(BoxWarp(aabb), resolution=8, step=0.01, alpha_threshold=0.01)
+    grid = DensityGrid(BoxWarp(aabb), resolution=8, step=0.01, alpha_threshold=0.01)
     assert grid.occupied_fraction == 1.0  # before the first update
 
     def density(p):  # a dense ball of radius 0.5
@@ -202,7 +202,7 @@ def test_march_dispatches_on_spacing():
         march("lindisp", t_min, t_max, 0.1, 40)
 
 
-# ------------------------------------------------------------------ occupancy grid over a forward warp
+# ------------------------------------------------------------------ density grid over a forward warp
 
 
 def _forward_warp():
@@ -213,7 +213,7 @@ def _forward_warp():
 
 def test_forward_grid_cell_points_lie_in_their_cells():
     r = 8
-    grid = OccupancyGrid(_forward_warp(), resolution=r, step=0.01)
+    grid = DensityGrid(_forward_warp(), resolution=r, step=0.01)
     cells = torch.arange(r**3)
     pts = grid.cell_points(cells, torch.Generator().manual_seed(0))
     assert pts.shape == (r**3, 3) and torch.isfinite(pts).all()
@@ -241,7 +241,7 @@ def test_forward_grid_per_slice_step_gives_per_slice_threshold():
     r = 8
     steps = torch.linspace(0.01, 0.5, r)  # disparity marching: steps grow with depth (slice index)
     alpha = 0.01
-    grid = OccupancyGrid(_forward_warp(), resolution=r, step=steps, alpha_threshold=alpha)
+    grid = DensityGrid(_forward_warp(), resolution=r, step=steps, alpha_threshold=alpha)
     thresholds = -np.log1p(-alpha) / steps.double().numpy()
     np.testing.assert_allclose(grid.sigma_threshold.reshape(-1).numpy(), thresholds, rtol=1e-6)
     sigma = float(np.sqrt(thresholds[0] * thresholds[-1]))  # above the far slices' threshold, below the near ones'
@@ -251,7 +251,7 @@ def test_forward_grid_per_slice_step_gives_per_slice_threshold():
     assert expected[-1] and not expected[0]
     assert torch.equal(grid.bits, expected.reshape(1, 1, r).expand(r, r, r))
     # a scalar step is one threshold for every slice
-    flat = OccupancyGrid(_forward_warp(), resolution=r, step=0.05, alpha_threshold=alpha)
+    flat = DensityGrid(_forward_warp(), resolution=r, step=0.05, alpha_threshold=alpha)
     flat.update(lambda p: torch.full((len(p),), sigma), decay=0.0, generator=torch.Generator().manual_seed(0))
     assert bool(flat.bits.all()) == (sigma > -np.log1p(-alpha) / 0.05) and flat.bits.unique().numel() == 1
 
@@ -358,7 +358,7 @@ def naive_rebuild(density, warp, r, s, threshold, dilate):
 def test_grid_rebuild_matches_a_naive_loop_and_forgets_stale_cells(dilate):
     aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
     r, s = 6, 3
-    grid = OccupancyGrid(BoxWarp(aabb), resolution=r, step=0.01, alpha_threshold=0.01)
+    grid = DensityGrid(BoxWarp(aabb), resolution=r, step=0.01, alpha_threshold=0.01)
 
     def density(p):  # a slab 0.1 thick (under a third of a 0.33 cell) at x = 0.3, faint haze elsewhere
         return torch.where((p[:, 0] - 0.3).abs() < 0.05, torch.full_like(p[:, 0], 50.0), torch.full_like(p[:, 0], 1e-3))

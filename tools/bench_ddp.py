@@ -61,9 +61,9 @@ def gradient_megabytes(preset_name: str, num_classes: int = 8) -> float:
     import torch
 
     from scenelabel.config import preset
-    from scenelabel.fields.model import SemanticField3D
+    from scenelabel.fields.model import FieldNetwork
 
-    model = SemanticField3D(preset(preset_name).field, num_classes, torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    model = FieldNetwork(preset(preset_name).field, num_classes, torch.tensor([[-1.0] * 3, [1.0] * 3]))
     return sum(p.numel() for p in model.parameters()) * 4 / 1e6
 
 

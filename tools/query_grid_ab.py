@@ -1,4 +1,4 @@
-"""Where query time goes on the furnished room: the occupancy grid's share of the box, and an A/B of grids.
+"""Where query time goes on the furnished room: the density grid's share of the box, and an A/B of grids.
 
     .venv/bin/python tools/query_grid_ab.py                      # builds the room (fast, 170 s), prints the tables
     .venv/bin/python tools/query_grid_ab.py --build DIR          # an existing build folder of the room instead
@@ -7,7 +7,7 @@ One field, five grids, the same points and rays (those of tools/bench.py: 1M uni
 bounds; 100k rays from the middle of the bounds in random directions, depth + label, no colour):
 
 - ``as trained``: the grid saved with the build (rebuilt from the final field, dilated one cell);
-- ``rebuild, no dilation`` / ``rebuild, dilate 1``: ``OccupancyGrid.rebuild`` of the same field;
+- ``rebuild, no dilation`` / ``rebuild, dilate 1``: ``DensityGrid.rebuild`` of the same field;
 - ``every cell``: nothing skipped (the reference the others are compared with);
 - ``as trained, behind the walls dropped``: cells more than WALL_CELLS cells beyond the walls' inner
   faces (space no camera sees) dropped as well: what skipping unobserved space would give (not a
@@ -45,7 +45,7 @@ WALL_CELLS = 2
 
 
 def _cell_centres_world(field: SemanticField) -> np.ndarray:
-    """World centres of the occupancy grid's cells, [R³, 3] in the grid's flat order."""
+    """World centres of the density grid's cells, [R³, 3] in the grid's flat order."""
     grid = field.occupancy
     u = (torch.arange(grid.resolution) + 0.5) / grid.resolution * 2.0 - 1.0
     unit = torch.stack(torch.meshgrid(u, u, u, indexing="ij"), -1).reshape(-1, 3)

@@ -2,7 +2,7 @@
 transform, cameras...), written atomically and read without running pickled code.
 
 A checkpoint file (format 2) is a ``torch.save`` of a dict that holds only tensors, plain
-containers and primitives: the state dicts of the field, its occupancy grid, the optional
+containers and primitives: the state dicts of the field, its density grid, the optional
 coarse field and the optimizer, the step, the elapsed seconds, the random generator's state,
 and one JSON string (``"json"``: ``{"meta": ..., "history": ...}``). It is read with
 ``torch.load(..., weights_only=True)``, torch's restricted unpickler, which builds tensors and
@@ -59,7 +59,7 @@ class Checkpoint:
     come back as strings, tuples as lists, numpy values as lists and numbers."""
 
     model: dict[str, torch.Tensor]  # the field's state dict
-    occupancy: dict[str, torch.Tensor]  # the occupancy grid's state dict
+    occupancy: dict[str, torch.Tensor]  # the density grid's state dict
     meta: dict[str, Any] = field(default_factory=dict)
     coarse_model: dict[str, torch.Tensor] | None = None  # NeRF's coarse field (hierarchical sampling)
     optimizer: dict[str, Any] | None = None  # the optimizer's state dict (to resume)

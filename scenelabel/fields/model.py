@@ -16,7 +16,7 @@ from scenelabel.errors import ConfigError
 from scenelabel.fields.encodings import DenseGrid, Positional, TriPlane, sh_directions
 from scenelabel.geometry.warps import BoxWarp
 
-__all__ = ["SemanticField3D", "build_encoding", "dense_grid_shape", "trunc_exp", "combine_class_densities"]
+__all__ = ["FieldNetwork", "build_encoding", "dense_grid_shape", "trunc_exp", "combine_class_densities"]
 
 SH_DIM = 9
 TRUNC_EXP_MAX = 15.0
@@ -98,7 +98,7 @@ def combine_class_densities(class_sigmas: torch.Tensor, how: str) -> torch.Tenso
     return class_sigmas.sum(-1) if how == "sum" else class_sigmas.amax(-1)
 
 
-class SemanticField3D(nn.Module):
+class FieldNetwork(nn.Module):
     """σ, colour and class scores at points (the seed paper's eq. 5 and eq. 6 variants).
 
     - ``class_head="linear"`` (eq. 6): trunk: features -> hidden -> (σ_raw, h); class: h -> logits.

@@ -1,6 +1,6 @@
 """Where the field spends its resolution: maps from the normalised frame to the encoding's cube.
 
-The field and its occupancy grid see points through a *warp* ``w: R^3 -> [-1, 1]^3`` (points that
+The field and its density grid see points through a *warp* ``w: R^3 -> [-1, 1]^3`` (points that
 map outside the cube have no density). Queries, renders, depths and maps stay in the input's world
 frame: a warp only decides which world points share an encoding cell, it never changes the
 geometry the user sees, and densities stay per world unit (unlike NDC rendering, which changes

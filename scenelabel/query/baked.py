@@ -2,7 +2,7 @@
 
 :meth:`BakedField.from_field` evaluates a :class:`~scenelabel.query.field.SemanticField` once
 at the vertices of a lattice over its modelled bounds (density and the class values the field
-composites, as its own queries see them: zero density where its occupancy grid holds space
+composites, as its own queries see them: zero density where its density grid holds space
 empty; class probabilities as uint8 codes for an eq. 7 field, float32 logits for an eq. 3 one).
 Queries then interpolate that lattice trilinearly in compiled loops (numba), so they cost a few
 memory reads per point and per ray sample instead of a network evaluation:
@@ -233,7 +233,7 @@ class BakedField:
 
         The lattice starts at the bounds' minimum corner and has ceil(extent / voxel_size) cells
         per axis (it covers the bounds). Each vertex holds the density and class values the
-        field's own queries see there (0 and uniform where its occupancy grid holds space empty).
+        field's own queries see there (0 and uniform where its density grid holds space empty).
         An eq. 7 field's vertices hold class probabilities, the values it composites, as uint8
         codes: a ray sample then reads C bytes and blends them instead of C floats and a softmax.
         An eq. 3 field's vertices hold its float32 logits.

@@ -21,7 +21,7 @@ from scenelabel.config import RANDOM_BACKGROUND, config_from_dict
 from scenelabel.data.scene import ClassMap
 from scenelabel.errors import InputError
 from scenelabel.fields.checkpoint import Checkpoint, load_checkpoint
-from scenelabel.fields.model import SemanticField3D
+from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_from_dict, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame
 from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid
@@ -46,7 +46,7 @@ from scenelabel.render.marcher import (
     render_rays_early_stop,
     render_rays_hierarchical,
 )
-from scenelabel.render.sampling import OccupancyGrid, march
+from scenelabel.render.sampling import DensityGrid, march
 
 __all__ = ["SemanticField", "PointQuery", "RayQuery", "RenderResult", "TRAIN_CAMERAS_KEY"]
 
@@ -63,12 +63,12 @@ class SemanticField:
 
     def __init__(
         self,
-        model: SemanticField3D,
-        occupancy: OccupancyGrid,
+        model: FieldNetwork,
+        occupancy: DensityGrid,
         frame: SceneFrame,
         class_map: ClassMap,
         meta: dict,
-        coarse: SemanticField3D | None = None,
+        coarse: FieldNetwork | None = None,
     ):
         """``coarse``: NeRF's coarse network when the field was trained with hierarchical
         sampling (``sampling.strategy``); rays are then rendered as in training."""
@@ -107,15 +107,15 @@ class SemanticField:
         class_map = ClassMap.from_dict(data["class_map"])
         aabb_n = torch.as_tensor(np.asarray(data["aabb_internal"]), dtype=torch.float32)
         warp = warp_from_dict(data["warp"]) if "warp" in data else BoxWarp(aabb_n)  # before warps: the box
-        model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+        model = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
         model.load_state_dict(ckpt.model)
         coarse = None
         if ckpt.coarse_model is not None:
-            coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+            coarse = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
             coarse.load_state_dict(ckpt.coarse_model)
             coarse = coarse.to(device)
         sc = config.sampling
-        grid = OccupancyGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
+        grid = DensityGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
         grid.load_state_dict(ckpt.occupancy)
         meta = dict(data)
         meta["config"] = config
@@ -149,7 +149,7 @@ class SemanticField:
     def _semantics_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
         """σ (normalised units) [N] and class probs [N, C] float64 at normalised points.
 
-        The network runs only where the occupancy grid may hold density (the grid is what
+        The network runs only where the density grid may hold density (the grid is what
         training and rendering use too): elsewhere σ = 0 and the probabilities are uniform
         (no class evidence in space the field holds empty).
         """

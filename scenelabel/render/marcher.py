@@ -1,7 +1,7 @@
 """Render rays through a field: sampling + field evaluation + the pure rendering maths.
 
 Rays here are in the field's normalised frame (see :class:`scenelabel.geometry.frame.SceneFrame`).
-Samples in cells the occupancy grid marks empty are never evaluated (σ = 0 there).
+Samples in cells the density grid marks empty are never evaluated (σ = 0 there).
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def render_rays(
     equal steps of ``step``, or ``n_samples`` equal steps of disparity.
 
     Args:
-        field: a SemanticField3D (callable as field(points, dirs) and field.semantics(points)).
+        field: a FieldNetwork (callable as field(points, dirs) and field.semantics(points)).
         occupancy: callable points [..., 3] -> bool [...], True where the field may be non-empty.
         origins, directions: [n_rays, 3] (unit directions).
         t_min, t_max: [n_rays] from :func:`ray_intervals`.
@@ -232,10 +232,10 @@ def render_rays_hierarchical(
     2. ``n_fine`` distances drawn from the coarse weights (:func:`scenelabel.render.sampling.importance_sample`);
     3. ``field`` composited at the coarse and fine distances together
        (:func:`scenelabel.render.sampling.merge_intervals`): n_coarse + n_fine + 1 intervals.
-    No occupancy grid: every interval of positive length is evaluated.
+    No density grid: every interval of positive length is evaluated.
 
     Args:
-        coarse_field, field: SemanticField3D-like (see :func:`render_rays`).
+        coarse_field, field: FieldNetwork-like (see :func:`render_rays`).
         origins, directions, t_min, t_max: as :func:`render_rays`.
         n_samples: (n_coarse, n_fine).
         jitter: (coarse [n_rays] in [0, 1), fine [n_rays, n_fine] in [0, 1)) for training, or None.

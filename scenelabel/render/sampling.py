@@ -1,6 +1,6 @@
 """Where to evaluate the field along rays: ray/AABB clipping, uniform or disparity marching, empty-space skipping.
 
-Pure functions, plus :class:`OccupancyGrid`, a thin state holder (a bit grid over the scene box,
+Pure functions, plus :class:`DensityGrid`, a thin state holder (a bit grid over the scene box,
 refreshed from the field's density during training) whose lookup is a pure function.
 """
 
@@ -22,7 +22,7 @@ __all__ = [
     "merge_intervals",
     "occupied_at",
     "cell_steps",
-    "OccupancyGrid",
+    "DensityGrid",
 ]
 
 
@@ -227,7 +227,7 @@ def merge_intervals(t_starts: torch.Tensor, t_ends: torch.Tensor, t_new: torch.T
 
 
 def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Look up a boolean occupancy grid covering ``aabb`` at ``points`` (outside -> False).
+    """Look up a boolean density grid covering ``aabb`` at ``points`` (outside -> False).
 
     Args:
         bits: [R, R, R] bool, indexed [i, j, k] along x, y, z.
@@ -245,10 +245,10 @@ def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) ->
 
 
 REBUILD_SAMPLES = 3
-"""Points per axis and cell at which :meth:`OccupancyGrid.rebuild` evaluates the density (27 per cell)."""
+"""Points per axis and cell at which :meth:`DensityGrid.rebuild` evaluates the density (27 per cell)."""
 
 REBUILD_DILATE = 1
-"""Cells by which :meth:`OccupancyGrid.rebuild` grows the occupied region."""
+"""Cells by which :meth:`DensityGrid.rebuild` grows the occupied region."""
 
 
 def cell_steps(warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int) -> float | torch.Tensor:
@@ -266,7 +266,7 @@ def cell_steps(warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: 
     return float(torch.linalg.norm(aabb_n[1] - aabb_n[0])) / n_steps
 
 
-class OccupancyGrid(nn.Module):
+class DensityGrid(nn.Module):
     """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
 
     Each cell keeps an exponential moving average of the largest density seen at random points
@@ -294,7 +294,7 @@ class OccupancyGrid(nn.Module):
     @classmethod
     def for_march(
         cls, warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int, alpha_threshold: float
-    ) -> "OccupancyGrid":
+    ) -> "DensityGrid":
         """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``
         (:func:`cell_steps`): what training builds and what a loaded field rebuilds."""
         return cls(warp, resolution, cell_steps(warp, aabb_n, resolution, n_steps), alpha_threshold)

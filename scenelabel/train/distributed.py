@@ -96,7 +96,7 @@ def broadcast_array(values: np.ndarray, device: torch.device = torch.device("cpu
 
 
 def broadcast_module_buffers(module: torch.nn.Module, src: int = 0) -> None:
-    """Copy rank ``src``'s buffers (e.g. an occupancy grid's) to every rank, in place."""
+    """Copy rank ``src``'s buffers (e.g. an density grid's) to every rank, in place."""
     if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
         return
     for buffer in module.buffers():

@@ -32,14 +32,14 @@ from scenelabel.data.io import load_scene
 from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
-from scenelabel.fields.model import SemanticField3D
+from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_to_dict
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
 from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.query.postprocess import colorize_labels, side_by_side, smooth_class_probs
-from scenelabel.render.sampling import OccupancyGrid, march
+from scenelabel.render.sampling import DensityGrid, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
 from scenelabel.train.trainer import Trainer, rays_for_views
@@ -240,16 +240,16 @@ def _trainer(
     scene: Scene, train_idx: list[int], class_map: ClassMap, aabb: np.ndarray, config: BuildConfig,
     device: torch.device, context: DistContext = DistContext(),
 ) -> tuple[Trainer, SceneFrame, torch.Tensor]:
-    """A trainer for a field over ``aabb`` (world): its frame, warp, model, occupancy grid and rays."""
+    """A trainer for a field over ``aabb`` (world): its frame, warp, model, density grid and rays."""
     frame = SceneFrame.from_aabb(aabb)
     aabb_n = torch.as_tensor(frame.to_normalised(aabb), dtype=torch.float32)
     warp = choose_warp(config.sampling.warp, scene.cameras[train_idx], frame, aabb_n)
-    model = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+    model = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
     coarse = None
     if config.sampling.strategy == "hierarchical":  # NeRF's coarse network: the same architecture
-        coarse = SemanticField3D(config.field, class_map.num_classes, aabb_n, warp)
+        coarse = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
     sc = config.sampling
-    grid = OccupancyGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
+    grid = DensityGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
     return Trainer(model, grid, rays, config, device, context, coarse), frame, aabb_n
 

@@ -1,4 +1,4 @@
-"""The optimisation loop: rays of the training views -> a fitted SemanticField3D + occupancy grid.
+"""The optimisation loop: rays of the training views -> a fitted FieldNetwork + density grid.
 
 Orchestration only; the maths lives in rendering.py, sampling.py and losses.py.
 """
@@ -18,7 +18,7 @@ from tqdm import tqdm
 from scenelabel.config import RANDOM_BACKGROUND, BuildConfig
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
-from scenelabel.fields.model import SemanticField3D
+from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.frame import SceneFrame
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import (
@@ -29,7 +29,7 @@ from scenelabel.render.marcher import (
     render_rays,
     render_rays_hierarchical,
 )
-from scenelabel.render.sampling import OccupancyGrid
+from scenelabel.render.sampling import DensityGrid
 from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from scenelabel.train.losses import (
     class_balance_weights,
@@ -128,10 +128,10 @@ class TrainingRender(nn.Module):
 
     def __init__(
         self,
-        model: SemanticField3D,
-        grid: OccupancyGrid,
+        model: FieldNetwork,
+        grid: DensityGrid,
         marching: Marching,
-        coarse: SemanticField3D | None = None,
+        coarse: FieldNetwork | None = None,
         hierarchical: tuple[int, int] = (64, 128),
     ):
         super().__init__()
@@ -177,13 +177,13 @@ class Trainer:
     Data-parallel (``dist.world_size`` > 1, the process group joined, :mod:`scenelabel.train.distributed`):
     each rank draws ``ceil(batch_rays / world_size)`` rays per step from its own random stream,
     the render is wrapped in DistributedDataParallel (gradients averaged over ranks), the
-    occupancy grid is updated from the same cells on every rank and then copied from rank 0, and
+    density grid is updated from the same cells on every rank and then copied from rank 0, and
     the logged losses, the loss checks and the elapsed time (which drives the learning-rate
     schedule and the time budget) are averaged over ranks, so every rank takes the same decisions.
 
     Args:
         model: the field (normalised frame).
-        grid: its occupancy grid.
+        grid: its density grid.
         rays: training rays.
         config: the resolved build config.
         device: where to train.
@@ -194,13 +194,13 @@ class Trainer:
 
     def __init__(
         self,
-        model: SemanticField3D,
-        grid: OccupancyGrid,
+        model: FieldNetwork,
+        grid: DensityGrid,
         rays: RayData,
         config: BuildConfig,
         device: torch.device,
         dist: DistContext = DistContext(),
-        coarse: SemanticField3D | None = None,
+        coarse: FieldNetwork | None = None,
     ):
         self.model = model.to(device)
         self.coarse = None if coarse is None else coarse.to(device)
@@ -390,8 +390,8 @@ class Trainer:
     def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
         """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
 
-        When training ends, the occupancy grid is rebuilt from the final field
-        (:meth:`~scenelabel.render.sampling.OccupancyGrid.rebuild`). On Ctrl-C it calls
+        When training ends, the density grid is rebuilt from the final field
+        (:meth:`~scenelabel.render.sampling.DensityGrid.rebuild`). On Ctrl-C it calls
         ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
         Data-parallel: only rank 0 shows progress and calls ``on_checkpoint``.
         """
