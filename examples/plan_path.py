@@ -15,10 +15,21 @@ What it does, in the map's world frame and units (docs/formats.md):
    in [z_min, z_max]; by default from one voxel above the floor's top (the highest layer holding at
    least half as many ``floor`` voxels as the fullest floor layer, else the lowest occupied layer)
    to below the ``ceiling`` (else the map's top), or floor top + --robot-height.
-3. Blocks occupied and unknown cells (never drives into space nobody has seen), inflated by
-   --robot-radius, and runs A* (8-connected, octile distance, no cutting corners).
-4. Prints the waypoints (cell centres, world x y) and the path length; --png draws the path over
-   the label image (row 0 = max y, as in the Nav2 export).
+3. Reads the clearance of each cell from the map's ``esdf`` array (float32 [nx, ny, nz]: signed
+   distance in world units to the nearest obstacle, negative inside; unknown space and the map's
+   outside count as obstacles): its value at the cell centre's x, y and the clearance height
+   (--clearance-height, default the middle of the band), linear between the two nearest layers.
+   That is the room a spherical robot centred there has, in 3D.
+4. Blocks occupied and unknown cells (never drives into space nobody has seen), inflated by
+   --robot-radius, and cells with less clearance than --min-clearance, and runs A* (8-connected,
+   octile distance, no cutting corners). A step costs its length times ``1 + w * max(0, 1 - c /
+   D)`` (the mean over its two cells), c the cell's clearance, D = --clearance (default 5 voxels),
+   w = --clearance-weight: the path keeps away from obstacles where that costs little.
+5. Prints the waypoints (cell centres, world x y), the path length and its smallest clearance at
+   the waypoints; --png draws the path over the label image (row 0 = max y, as in the Nav2 export).
+
+Maps written before scenelabel stored the ``esdf`` array plan without clearance (the example says
+so; --min-clearance then refuses to run).
 
 Exit status: 0 with a path, 1 when no path exists, 2 for bad input (start or goal outside the map,
 occupied, unknown or too close to an obstacle).
@@ -110,6 +121,29 @@ def floor_plan(label, z_min, z_max, origin_z, voxel_size):
     return np.where(has_class.any(axis=2), top_class, np.where(np.all(band == -1, axis=2), -1, -2))
 
 
+def clearance_map(group, shape, origin_z, voxel_size, height):
+    """[nx, ny] float: the stored ESDF at each cell centre's x, y and world z = ``height``, linear
+    between the two nearest layers of voxel centres (clamped to the map); None when the map has no
+    ``esdf`` array (or one of another rule than unknown space as obstacles)."""
+    if "esdf" not in group or group["esdf"].attrs.get("unknown") != "occupied":
+        return None
+    nz = shape[2]
+    u = min(max((height - origin_z) / voxel_size, 0.0), nz - 1.0)  # continuous layer index
+    k0 = min(math.floor(u), max(nz - 2, 0))
+    layers = np.asarray(group["esdf"][:, :, k0 : k0 + 2], dtype=np.float64)  # [nx, ny, 1 or 2]: 2 layers read
+    if layers.shape[2] == 1:
+        return layers[:, :, 0]
+    t = u - k0
+    return (1 - t) * layers[:, :, 0] + t * layers[:, :, 1]
+
+
+def step_costs(clearance, preferred, weight):
+    """[nx, ny] cost factor >= 1 of a cell: ``1 + weight * max(0, 1 - clearance / preferred)``."""
+    if clearance is None or weight <= 0 or preferred <= 0:
+        return None
+    return 1.0 + weight * np.clip(1.0 - clearance / preferred, 0.0, 1.0)
+
+
 def inflate(blocked, radius_cells):
     """[nx, ny] bool: cells within ``radius_cells`` (centre to centre) of a blocked cell."""
     r = math.floor(radius_cells)
@@ -134,9 +168,11 @@ def octile(a, b):
     return max(di, dj) + (math.sqrt(2) - 1) * min(di, dj)
 
 
-def astar(blocked, start, goal):
-    """Shortest 8-connected path of cells from start to goal avoiding ``blocked``; None if none.
+def astar(blocked, start, goal, cost=None):
+    """Cheapest 8-connected path of cells from start to goal avoiding ``blocked``; None if none.
 
+    A step costs its length (1 or sqrt 2 cells) times the mean ``cost`` factor (>= 1, so the
+    octile distance stays an admissible heuristic) of its two cells; ``cost`` None: its length.
     A diagonal step is allowed only when both cells beside it are free (no cutting corners).
     """
     nx, ny = blocked.shape
@@ -144,14 +180,14 @@ def astar(blocked, start, goal):
     came_from = {}
     heap = [(octile(start, goal), 0.0, start)]
     while heap:
-        _, cost, cell = heapq.heappop(heap)
+        _, g, cell = heapq.heappop(heap)
         if cell == goal:
             path = [cell]
             while cell in came_from:
                 cell = came_from[cell]
                 path.append(cell)
             return path[::-1]
-        if cost > best[cell]:
+        if g > best[cell]:
             continue  # a stale entry
         i, j = cell
         for di, dj in NEIGHBOURS:
@@ -160,7 +196,10 @@ def astar(blocked, start, goal):
                 continue
             if di and dj and (blocked[i + di, j] or blocked[i, j + dj]):
                 continue
-            new_cost = cost + (math.sqrt(2) if di and dj else 1.0)
+            step = math.sqrt(2) if di and dj else 1.0
+            if cost is not None:
+                step *= 0.5 * (cost[i, j] + cost[ni, nj])
+            new_cost = g + step
             if new_cost < best.get((ni, nj), math.inf):
                 best[(ni, nj)] = new_cost
                 came_from[(ni, nj)] = cell
@@ -207,8 +246,9 @@ def draw_png(path_png, plan, blocked, classes, cells):
 # ---------------------------------------------------------------------------------------------
 
 
-def cell_of(name, xy, origin, voxel_size, plan, blocked, free_before_inflation, names):
-    """The plan cell of a world (x, y), checked to be inside, free and not too close to obstacles."""
+def cell_of(name, xy, origin, voxel_size, plan, blocked, free_before_inflation, names, clearance, min_clearance):
+    """The plan cell of a world (x, y), checked to be inside, free and not too close to obstacles
+    (``clearance`` [nx, ny] or None: see :func:`clearance_map`)."""
     i, j = (int(v) for v in np.floor((np.asarray(xy) - origin[:2]) / voxel_size + 0.5))
     if not (0 <= i < plan.shape[0] and 0 <= j < plan.shape[1]):
         raise PlanError(f"{name} ({xy[0]:g}, {xy[1]:g}) is outside the map")
@@ -216,6 +256,11 @@ def cell_of(name, xy, origin, voxel_size, plan, blocked, free_before_inflation, 
         raise PlanError(f"{name} ({xy[0]:g}, {xy[1]:g}) is occupied by {names.get(int(plan[i, j]), plan[i, j])}")
     if plan[i, j] == -2:
         raise PlanError(f"{name} ({xy[0]:g}, {xy[1]:g}) is in unknown space")
+    if clearance is not None and clearance[i, j] < min_clearance:
+        raise PlanError(
+            f"{name} ({xy[0]:g}, {xy[1]:g}) has clearance {clearance[i, j]:.3f}, "
+            f"less than --min-clearance {min_clearance:g}"
+        )
     if blocked[i, j] and free_before_inflation[i, j]:
         raise PlanError(f"{name} ({xy[0]:g}, {xy[1]:g}) is closer than the robot radius to an obstacle")
     return i, j
@@ -230,6 +275,10 @@ def main(argv=None):
     parser.add_argument("--z-min", type=float, help="bottom of the height band (world z)")
     parser.add_argument("--z-max", type=float, help="top of the height band (world z)")
     parser.add_argument("--robot-height", type=float, help="band top = floor top + this")
+    parser.add_argument("--clearance-height", type=float, help="world z at which the esdf is read (default: mid band)")
+    parser.add_argument("--clearance", type=float, help="preferred clearance D, world units (default: 5 voxels)")
+    parser.add_argument("--clearance-weight", type=float, default=1.0, help="w of the clearance cost (0: shortest)")
+    parser.add_argument("--min-clearance", type=float, default=0.0, help="never closer than this to an obstacle")
     parser.add_argument("--png", help="draw the path over the label image into this PNG")
     args = parser.parse_args(argv)
 
@@ -248,21 +297,39 @@ def main(argv=None):
         plan = floor_plan(label, z_min, z_max, origin[2], voxel_size)  # [nx, ny]
         free = plan == -1
         blocked = inflate(~free, args.robot_radius / voxel_size)  # occupied and unknown cells block
-        start = cell_of("start", args.start, origin, voxel_size, plan, blocked, free, names)
-        goal = cell_of("goal", args.goal, origin, voxel_size, plan, blocked, free, names)
+        height = 0.5 * (z_min + z_max) if args.clearance_height is None else args.clearance_height
+        clearance = clearance_map(group, label.shape, origin[2], voxel_size, height)  # [nx, ny] or None
+        if clearance is None and args.min_clearance > 0:
+            raise PlanError("--min-clearance needs the map's esdf array (an older map has none: export it again)")
+        if clearance is not None:
+            blocked |= clearance < args.min_clearance
+        ends = (origin, voxel_size, plan, blocked, free, names, clearance, args.min_clearance)
+        start = cell_of("start", args.start, *ends)
+        goal = cell_of("goal", args.goal, *ends)
     except PlanError as err:
         print(f"plan_path: error: {err}", file=sys.stderr)
         return 2
     print(f"floor plan: {plan.shape[0]} x {plan.shape[1]} cells of {voxel_size:g}, z band [{z_min:.3f}, {z_max:.3f}], "
           f"{int((plan >= 0).sum())} occupied, {int(free.sum())} free, {int((plan == -2).sum())} unknown")
+    preferred = 5 * voxel_size if args.clearance is None else args.clearance
+    if clearance is None:
+        print("clearance: the map has no esdf array (an older map): planning without it")
+    else:
+        print(f"clearance: esdf at z = {height:.3f}, preferred {preferred:g}, weight {args.clearance_weight:g}, "
+              f"minimum {args.min_clearance:g}")
 
-    cells = astar(blocked, start, goal)
+    cells = astar(blocked, start, goal, step_costs(clearance, preferred, args.clearance_weight))
     if cells is None:
         print(f"plan_path: no path from {tuple(args.start)} to {tuple(args.goal)} through free space", file=sys.stderr)
         return 1
     waypoints = origin[:2] + voxel_size * np.asarray(cells, float)  # [n, 2] cell centres
     length = float(np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum())
-    print(f"path: {len(cells)} waypoints, length {length:.3f} {units}".rstrip())
+    unit = f" {units}" if units else ""
+    if clearance is None:
+        lowest = "unknown"
+    else:
+        lowest = f"{min(clearance[c] for c in cells):.4f}{unit}"
+    print(f"path: {len(cells)} waypoints, length {length:.3f}{unit}, min clearance {lowest}")
     for x, y in waypoints:
         print(f"{x:.4f} {y:.4f}")
     if args.png:

@@ -51,6 +51,7 @@ _HOMES = {
     "run_sfm": "scenelabel.data.sfm",
     "write_furnished_room": "scenelabel.data.synthetic",
     "write_toy_scene": "scenelabel.data.synthetic",
+    "log_rerun": "scenelabel.viz.rerun_log",
 }
 
 
@@ -99,6 +100,7 @@ __all__ = [
     "OutputConfig",
     "preset",
     "write_toy_scene",
+    "log_rerun",
     "write_furnished_room",
     "ScenelabelError",
     "InputError",

@@ -1,4 +1,4 @@
-"""The command line: ``scenelabel build | demo | toy | export | segment | sfm | upgrade-checkpoint``.
+"""The command line: ``scenelabel build | demo | toy | export | view | segment | sfm | upgrade-checkpoint``.
 
 Errors a user can cause print one line (``scenelabel: error: ...``) and exit with status 2;
 they never show a traceback.
@@ -183,8 +183,8 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print(f"renders: {out / 'renders'}   map: {out / 'map.zarr'}")
 
 
-EXPORT_FORMATS = ("zarr", "ply", "mesh", "nav2")
-FORMAT_OF_SUFFIX = {".zarr": "zarr", ".ply": "ply"}
+EXPORT_FORMATS = ("zarr", "ply", "mesh", "glb", "nav2", "octomap", "rrd")
+FORMAT_OF_SUFFIX = {".zarr": "zarr", ".ply": "ply", ".glb": "glb", ".bt": "octomap", ".ot": "octomap", ".rrd": "rrd"}
 """The export formats an output's name says by itself (mesh: a folder, nav2: a path stem)."""
 
 
@@ -196,8 +196,8 @@ def export_format(requested: str | None, out: Path) -> str:
     if requested is None:
         if named is None:
             raise InputError(
-                "cannot tell the format from the name: end OUT in .zarr or .ply, or give --format mesh (a folder) "
-                "or --format nav2 (a path stem)",
+                "cannot tell the format from the name: end OUT in .zarr, .ply, .glb, .bt, .ot or .rrd, or give "
+                "--format mesh (a folder) or --format nav2 (a path stem)",
                 path=out,
             )
         return named
@@ -211,13 +211,23 @@ def _is_build(source: Path) -> bool:
     return (source / "checkpoint.pt").is_file() or (source.is_file() and source.suffix == ".pt")
 
 
+def _reused_map(source: Path, voxel_size: float | None):
+    """The map a build folder wrote itself when it fits (:func:`scenelabel.query.build_outputs.own_map`),
+    said on stdout; else None."""
+    from scenelabel.query.build_outputs import MAP_NAME, own_map
+
+    occ = own_map(source, voxel_size)
+    if occ is not None:
+        print(f"using the build's own map {source / MAP_NAME} (voxel size {occ.voxel_size:g})")
+    return occ
+
+
 def _load_map(source: Path, voxel_size: float | None):
-    """The occupancy map of a build folder (evaluated at ``voxel_size``) or of a map .zarr folder."""
+    """The occupancy map of a build folder (the field evaluated at ``voxel_size``) or of a map .zarr folder."""
     from scenelabel.maps import OccupancyMap
 
-    is_build = _is_build(source)
     is_zarr = source.is_dir() and ((source / "zarr.json").is_file() or (source / ".zgroup").is_file())
-    if is_build:
+    if _is_build(source):
         from scenelabel.query.field import SemanticField
 
         return SemanticField.load(source).occupancy_map(voxel_size)
@@ -264,19 +274,39 @@ def _export_chunked(args: argparse.Namespace, source: Path, out: Path) -> None:
     print(f"wrote {path}: {tuple(group['label'].shape)} voxels of {group.attrs['voxel_size']:g}")
 
 
+def _export_rrd(args: argparse.Namespace, source: Path, out: Path, build: bool) -> None:
+    """``export BUILD_OR_MAP OUT.rrd``: a rerun recording (:func:`scenelabel.viz.rerun_log.log_rerun`) of the
+    map (a build's own when it fits, as for the other formats), its class meshes, the views (photos and masks
+    from ``--scene``), the held-out renders and the training curves."""
+    from scenelabel.viz.rerun_log import log_rerun
+
+    occ = _reused_map(source, args.voxel_size) if build else None
+    if occ is None:
+        occ = _load_map(source, args.voxel_size)
+    s = log_rerun(source, out, scene=args.scene, occ_map=occ)
+    print(f"wrote {s.path}: {s.n_points} map points, {s.n_meshes} class meshes, {s.n_views} views ({s.n_renders} "
+          f"rendered), {s.n_steps} training steps; open it with: rerun {s.path}")
+
+
 def _cmd_export(args: argparse.Namespace) -> None:
     from scenelabel.maps import exports
 
     source, out = Path(args.source), Path(args.out)
     args.format = export_format(args.format, out)
-    if args.format == "zarr" and _is_build(source):
-        _export_chunked(args, source, out)
-        return
-    if args.workers is not None or args.scheduler:
+    build, cluster = _is_build(source), args.workers is not None or bool(args.scheduler)
+    if cluster and not (args.format == "zarr" and build):
         raise InputError(
             "--workers and --scheduler apply to --format zarr from a build folder (the chunked export)", path=source
         )
-    occ = _load_map(source, args.voxel_size)
+    if args.format == "rrd":
+        _export_rrd(args, source, out, build)
+        return
+    occ = None if cluster or not build else _reused_map(source, args.voxel_size)
+    if occ is None and args.format == "zarr" and build:
+        _export_chunked(args, source, out)
+        return
+    if occ is None:
+        occ = _load_map(source, args.voxel_size)
     if args.format == "zarr":
         path = occ.to_zarr(out, zarr_format=args.zarr_format)
         print(f"wrote {path}: {occ.shape} voxels of {occ.voxel_size:g}")
@@ -287,8 +317,24 @@ def _cmd_export(args: argparse.Namespace) -> None:
         paths = exports.write_class_meshes(occ, out)
         names = ", ".join(occ.classes[cid] for cid in paths) or "none (no occupied voxel)"
         print(f"wrote {len(paths)} class meshes to {out}: {names}")
+    elif args.format == "glb":
+        meshes = exports.class_meshes(occ)
+        path = exports.write_glb(occ, out, meshes=meshes)
+        counts = ", ".join(f"{occ.classes[cid]} {len(mesh.faces)}" for cid, mesh in meshes.items())
+        print(f"wrote {path}: triangles per class: {counts}")
+    elif args.format == "octomap":
+        path = exports.write_octomap(occ, out)
+        n_occupied, n_free = int((occ.label >= 0).sum()), int((occ.label == -1).sum())  # a class, FREE
+        leaves = exports.read_octomap(path).getNumLeafNodes()
+        print(f"wrote {path}: {n_occupied} occupied and {n_free} free voxels ({occ.label.size - n_occupied - n_free} "
+              f"UNKNOWN left out) as {leaves} octree leaves after pruning")
     else:
         paths = exports.write_nav2(occ, out, args.z_min, args.z_max, args.robot_height)
+        if args.legend:  # a picture beside the map files; OUT_labels.png stays one pixel per cell
+            from scenelabel.viz.pictures import write_floor_plan_picture
+
+            stem = paths["labels"].with_name(paths["labels"].name.replace("_labels.png", "_legend.png"))
+            paths["legend"] = write_floor_plan_picture(occ, stem, args.z_min, args.z_max, args.robot_height).path
         print("wrote " + ", ".join(str(p) for p in paths.values()))
 
 
@@ -300,6 +346,19 @@ def _cmd_upgrade_checkpoint(args: argparse.Namespace) -> None:
         print(f"converted {path} to checkpoint format {FORMAT_VERSION}")
     else:
         print(f"{path} is in checkpoint format {FORMAT_VERSION} already; nothing to do")
+
+
+def _cmd_view(args: argparse.Namespace) -> None:
+    """Serve the web viewer of a build or a map until Ctrl-C (or --timeout)."""
+    from scenelabel.viz.viewer import ViewerApp
+
+    app = ViewerApp.open(args.source, voxel_size=args.voxel_size, images=args.images, device=args.device)
+    url = app.start(args.port, args.host)
+    print(f"scenelabel: viewer of {args.source} at {url} (Ctrl-C to stop)", flush=True)
+    try:
+        app.serve_forever(args.timeout)
+    except KeyboardInterrupt:
+        print("scenelabel: viewer stopped", flush=True)
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -355,21 +414,35 @@ def make_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "export",
-        help="export the occupancy map of a build (or of a map .zarr) as zarr, a point cloud, meshes or a Nav2 map",
+        help="export the occupancy map of a build (or of a map .zarr) as zarr, a point cloud, meshes, a Nav2 map "
+        "or an OctoMap",
         description="Formats (docs/formats.md, 'Exports'): zarr: OUT is a .zarr folder; ply: OUT is a .ply point "
-        "cloud of occupied voxel centres; mesh: OUT is a folder of per-class .ply meshes; nav2: OUT is a path stem "
-        "for OUT.pgm, OUT.yaml and OUT_labels.png (a 2D floor plan of a height band).",
+        "cloud of occupied voxel centres; mesh: OUT is a folder of per-class .ply meshes; glb: OUT is a .glb file of "
+        "the same meshes (a node and a material per class, Y-up); nav2: OUT is a path stem "
+        "for OUT.pgm, OUT.yaml and OUT_labels.png (a 2D floor plan of a height band); octomap: OUT is a .bt (binary "
+        "occupancy OcTree) or .ot (ColorOcTree: log-odds and class colours) file, UNKNOWN voxels left out; rrd: OUT is "
+        "a .rrd rerun recording (map points, meshes, views, renders, training curves; open it with `rerun OUT`).",
     )
     p.add_argument("source", metavar="BUILD_OR_MAP", help="build folder (with checkpoint.pt) or occupancy map (.zarr folder)")
     p.add_argument("out", metavar="OUT", help="output path (see the formats)")
     p.add_argument(
-        "--format", choices=EXPORT_FORMATS, help="output format (default: from OUT's name: .zarr -> zarr, .ply -> ply)"
+        "--format",
+        choices=EXPORT_FORMATS,
+        help="output format (default: from OUT's name: .zarr -> zarr, .ply -> ply, .glb -> glb, .bt/.ot -> octomap, "
+        ".rrd -> rrd)",
     )
     p.add_argument("--voxel-size", type=float, help="voxel size in world units, for a build folder (default: from the images)")
     p.add_argument("--zarr-format", type=int, choices=(2, 3), default=3, help="zarr format version (--format zarr)")
     p.add_argument("--z-min", type=float, help="nav2: bottom of the height band, world z (default: one voxel above the floor)")
     p.add_argument("--z-max", type=float, help="nav2: top of the height band, world z (default: below the ceiling, or the map's top)")
     p.add_argument("--robot-height", type=float, help="nav2: band top = floor top + this (world units)")
+    p.add_argument(
+        "--legend", action="store_true", help="nav2: also OUT_legend.png, the floor plan with a legend and a scale bar"
+    )
+    p.add_argument(
+        "--scene",
+        help="rrd: the scene folder of the views' photos and masks (default: BUILD/.. for a build in SCENE/scenelabel)",
+    )
     cluster = p.add_mutually_exclusive_group()
     cluster.add_argument(
         "--workers",
@@ -428,6 +501,20 @@ def make_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("path", metavar="PATH", help="build folder (with checkpoint.pt) or checkpoint file")
     p.set_defaults(func=_cmd_upgrade_checkpoint)
+
+    p = sub.add_parser(
+        "view",
+        help="look at a build (map, cameras, point queries, renders) or a map .zarr in the browser (docs/look.md)",
+        description="Serves a local web viewer (viser) and prints its URL; runs until Ctrl-C.",
+    )
+    p.add_argument("source", metavar="BUILD_OR_MAP", help="build folder (with checkpoint.pt) or map (.zarr folder)")
+    p.add_argument("--port", type=int, default=8080, help="TCP port (default: 8080; 0: any free port)")
+    p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: 127.0.0.1: this machine)")
+    p.add_argument("--voxel-size", type=float, help="a build's map at this voxel size (default: the build's own map)")
+    p.add_argument("--images", metavar="DIR", help="the scene's photos, for the frusta (default: the build's scene)")
+    p.add_argument("--device", help="cpu or cuda for the field (default: cuda when available)")
+    p.add_argument("--timeout", type=float, metavar="SECONDS", help="stop after SECONDS (default: at Ctrl-C)")
+    p.set_defaults(func=_cmd_view)
     return parser
 
 

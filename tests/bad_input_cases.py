@@ -176,6 +176,15 @@ def _export_empty_band(tmp):
     return ["export", str(small_map(tmp)), str(tmp / "plan"), "--format", "nav2", "--z-min", "5", "--z-max", "6"]
 
 
+def _export_octomap_out_of_range(tmp):
+    """A map 5 km from the world origin at 0.1: beyond OctoMap's 65536 cells per axis (+-3276.8)."""
+    from scenelabel import FREE, OccupancyMap
+
+    label = np.full((4, 4, 4), FREE, np.int16)
+    occ = OccupancyMap(label, np.zeros(label.shape, np.float32), 0.1, [5000.0, 0.0, 0.0], {1: "floor"}, 0.1)
+    return ["export", str(occ.to_zarr(tmp / "far.zarr")), str(tmp / "far.bt")]
+
+
 def _photos_that_do_not_register(tmp):
     photos = tmp / "photos"
     (photos / "images").mkdir(parents=True)
@@ -219,4 +228,5 @@ CASES = [
     Case("export --voxel-size of a map", _export_voxel_size_of_a_map, ("map.zarr", "--voxel-size")),
     Case("export --format ply to a non-.ply file", _export_ply_suffix, ("points.txt", ".ply")),
     Case("export --format nav2 with an empty height band", _export_empty_band, ("no voxel layer",)),
+    Case("export to OctoMap a map beyond its key range", _export_octomap_out_of_range, ("far.bt", "OctoMap's key range")),
 ]

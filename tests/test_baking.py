@@ -2,6 +2,8 @@
 the extremes, and a baked toy field answering as the field does."""
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -259,14 +261,19 @@ def test_baked_rays_answer_as_the_field(fields):
         got = lattice.query_rays(origins, directions * 7.0)  # length does not matter
         assert np.mean(got.label == want.label) > share
         hit = (got.label >= 0) & (want.label >= 0)
-        assert np.median(np.abs(got.depth - want.depth)[hit]) < lattice.voxel_size
+        assert np.median(np.abs(got.depth[hit] - want.depth[hit])) < lattice.voxel_size
+        # the ray contract: finite depth exactly where the ray hits, for both
+        for answer in (got, want):
+            np.testing.assert_array_equal(np.isfinite(answer.depth), answer.label >= 0)
     got = baked.query_rays(origins, directions)
     np.testing.assert_allclose(got.probs.sum(-1), 1.0, atol=1e-9)
     # near / far limit the depth; a ray that never enters the bounds is UNKNOWN
     limited = baked.query_rays(origins[:50], directions[:50], near=0.01, far=0.02)
-    assert np.all((limited.depth >= 0.01 - 1e-12) & (limited.depth <= 0.02 + 1e-12))
+    hit = limited.label >= 0
+    assert np.all((limited.depth[hit] >= 0.01 - 1e-12) & (limited.depth[hit] <= 0.02 + 1e-12))
+    assert np.all((limited.depth[~hit] == np.inf) & (limited.label[~hit] == FREE))
     outside = baked.query_rays(field.aabb[1] + 1.0, np.ones((1, 3)))
-    assert outside.label[0] == UNKNOWN
+    assert outside.label[0] == UNKNOWN and outside.depth[0] == np.inf
     sky = baked.query_rays(centre[None], np.array([[0.0, 0.0, 1.0]]), far=1e-6)
     assert sky.label[0] == FREE
 
@@ -290,3 +297,58 @@ def test_bake_refuses_what_it_cannot_hold(fields):
     assert not baked.density.flags.writeable and not baked.class_values.flags.writeable
     with pytest.raises(InputError, match="directions"):
         baked.query_rays(np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize("scores", [True, False])
+def test_saved_baked_field_answers_the_same(tmp_path, scores):
+    """BakedField.save / load: the same lattice, attributes and answers; a second save needs
+    overwrite; a zarr that is not a baked field is refused."""
+    rng = np.random.default_rng(11)
+    density, class_values, corner, spacing = random_lattice(rng, (9, 7, 8), 3, scores)
+    aabb = np.stack([corner, corner + spacing * (np.array(density.shape) - 1)])
+    baked = BakedField((density, class_values, corner, spacing), aabb, {4: "floor", 2: "chair", 9: "wall"}, (0.05, 0.02, scores))
+    path = baked.save(tmp_path / "baked.zarr")
+    loaded = BakedField.load(path)
+    np.testing.assert_array_equal(loaded.density, baked.density)
+    np.testing.assert_array_equal(loaded.class_values, baked.class_values)
+    assert loaded.class_values.dtype == baked.class_values.dtype
+    assert loaded.classes == baked.classes and list(loaded.class_ids) == [4, 2, 9]  # channel order kept
+    assert (loaded.voxel_size, loaded.occupancy_delta, loaded.step, loaded.scores) == (spacing, 0.05, 0.02, scores)
+    np.testing.assert_array_equal(loaded.aabb, baked.aabb)
+    o, d, _, _ = random_rays(rng, corner, 200)
+    for a, b in ((baked.query_rays(o, d), loaded.query_rays(o, d)), (baked.query_points(o), loaded.query_points(o))):
+        np.testing.assert_array_equal(a.label, b.label)
+        np.testing.assert_array_equal(a.probs, b.probs)
+    with pytest.raises(InputError, match="already exists"):
+        baked.save(path)
+    baked.save(path, overwrite=True)
+    with pytest.raises(InputError, match="not a zarr group"):
+        BakedField.load(tmp_path)
+    import zarr
+
+    zarr.open_group(str(tmp_path / "other.zarr"), mode="w").attrs["format"] = "something.else"
+    with pytest.raises(InputError, match="expected 'scenelabel.baked_field'"):
+        BakedField.load(tmp_path / "other.zarr")
+
+
+def test_a_saved_baked_field_answers_without_torch(tmp_path):
+    """A planner's process: load a saved BakedField and cast rays with torch unimportable."""
+    rng = np.random.default_rng(12)
+    density, class_values, corner, spacing = random_lattice(rng, (6, 6, 6), 2, False)
+    aabb = np.stack([corner, corner + spacing * 5])
+    path = BakedField((density, class_values, corner, spacing), aabb, {0: "a", 1: "b"}, (0.05, 0.02, False)).save(tmp_path / "b.zarr")
+    code = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('torch', 'cv2'):\n"
+        "            raise ImportError(name + ' blocked')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import numpy as np\n"
+        "from scenelabel import BakedField\n"
+        f"baked = BakedField.load({str(path)!r})\n"
+        f"r = baked.query_rays(np.full((5, 3), {corner.tolist()!r}) - 0.1, np.ones((5, 3)))\n"
+        "print(sorted(set(r.label.tolist())), 'torch' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out[-1] == "False"

@@ -45,6 +45,35 @@ def test_build_and_export_smoke(small_build, tmp_path):
     assert (tmp_path / "m.zarr" / ".zgroup").exists()
 
 
+def test_export_reuses_the_builds_own_map_when_it_fits(small_build, tmp_path):
+    """export BUILD reads BUILD/map.zarr instead of evaluating the field again when the voxel size
+    matches (or none is asked) and the map is not older than the checkpoint."""
+    import os
+
+    from scenelabel.fields.checkpoint import CHECKPOINT_NAME
+    from scenelabel.query.build_outputs import CHECKPOINT_FILE
+    from scenelabel.query.build_outputs import MAP_NAME as BUILD_MAP
+
+    assert CHECKPOINT_FILE == CHECKPOINT_NAME
+    _, out = small_build
+    own = OccupancyMap.from_zarr(out / BUILD_MAP)
+    proc = run_cli("export", out, tmp_path / "a.zarr")
+    assert proc.returncode == 0 and "using the build's own map" in proc.stdout, proc.stdout + proc.stderr
+    assert OccupancyMap.from_zarr(tmp_path / "a.zarr") == own
+    proc = run_cli("export", out, tmp_path / "b.ply", "--voxel-size", f"{own.voxel_size:.12g}")
+    assert proc.returncode == 0 and "using the build's own map" in proc.stdout
+    proc = run_cli("export", out, tmp_path / "c.ply", "--voxel-size", f"{2 * own.voxel_size:g}")  # another size
+    assert proc.returncode == 0 and "using the build's own map" not in proc.stdout
+    checkpoint = out / "checkpoint.pt"
+    stat = checkpoint.stat()
+    try:  # a checkpoint newer than the map (training resumed): the field is evaluated again
+        os.utime(checkpoint, (stat.st_atime, (out / BUILD_MAP).stat().st_mtime + 10))
+        proc = run_cli("export", out, tmp_path / "d.ply")
+        assert proc.returncode == 0 and "using the build's own map" not in proc.stdout
+    finally:
+        os.utime(checkpoint, (stat.st_atime, stat.st_mtime))
+
+
 def test_export_every_format_from_a_build(small_build, tmp_path):
     _, out = small_build
     for fmt, target, files in (
@@ -76,6 +105,10 @@ def test_export_every_format_from_a_map(box_map, tmp_path):
     assert proc.returncode == 0 and (tmp_path / "again.zarr" / "zarr.json").exists()
     proc = run_cli("export", box_map, tmp_path / "again.ply")
     assert proc.returncode == 0 and (tmp_path / "again.ply").read_bytes().startswith(b"ply\n")
+    proc = run_cli("export", box_map, tmp_path / "map.glb")  # class meshes as one GLB, the format from the name
+    assert proc.returncode == 0, proc.stderr
+    assert "triangles per class: floor " in proc.stdout and ", box " in proc.stdout
+    assert (tmp_path / "map.glb").read_bytes().startswith(b"glTF")
 
 
 def test_export_user_errors_exit_2(box_map, tmp_path):

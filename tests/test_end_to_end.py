@@ -91,7 +91,7 @@ def test_the_final_grid_skips_space_without_changing_what_rays_hit(toy_build):
     hit = everywhere.opacity >= 0.5  # the depth of a ray through faint haze only means little
     assert occupied < 0.5
     assert (with_grid.label == everywhere.label).mean() >= 0.99
-    assert hit.mean() > 0.3 and np.quantile(np.abs(with_grid.depth - everywhere.depth)[hit], 0.99) < 0.01
+    assert hit.mean() > 0.3 and np.quantile(np.abs(with_grid.depth[hit] - everywhere.depth[hit]), 0.99) < 0.01
 
 
 def test_occupancy_map_zarr_round_trip_and_schema(toy_build, tmp_path):
@@ -135,3 +135,29 @@ def test_loaded_grid_keeps_the_training_threshold(toy_build):
     stored = field.occupancy.bits.clone()
     field.occupancy.rebuild(field.model.density)
     assert torch.equal(field.occupancy.bits, stored)
+
+
+def test_one_ray_contract_for_the_field_the_baked_field_and_the_map(toy_build):
+    """The same rays through SemanticField.query_rays, BakedField.query_rays and
+    OccupancyMap.cast_rays (docs/conventions.md, "Rays"): a hit has its class and a finite
+    depth, a ray that crosses the bounds without one is FREE at depth inf, a ray that never
+    enters them is UNKNOWN at depth inf."""
+    from scenelabel import BakedField
+
+    field = SemanticField.load(toy_build.out_dir)
+    occ = field.occupancy_map(visibility=False)  # UNKNOWN only outside the bounds, as the field's queries
+    top = max(b.hi[2] for b in TOY_BOXES)
+    hits = [(0.5 * (np.array(b.lo) + np.array(b.hi)), b.class_id, b.hi[2]) for b in TOY_BOXES]
+    origins = [[c[0], c[1], top + 0.05] for c, _, _ in hits] + [[0.0, 0.0, top + 0.05], field.aabb[1] + 1.0]
+    directions = [[0.0, 0.0, -1.0]] * len(hits) + [[1.0, 0.3, 0.0], [1.0, 1.0, 1.0]]
+    want_label = [cid for _, cid, _ in hits] + [FREE, UNKNOWN]
+    want_depth = [top + 0.05 - z for _, _, z in hits]
+    answers = {
+        "field": field.query_rays(origins, directions, with_rgb=False),
+        "baked": BakedField.from_field(field).query_rays(origins, directions),
+        "map": occ.cast_rays(origins, directions),
+    }
+    for name, answer in answers.items():
+        assert answer.label.tolist() == want_label, name
+        np.testing.assert_allclose(answer.depth[: len(hits)], want_depth, atol=1.5 * occ.voxel_size, err_msg=name)
+        assert np.all(answer.depth[len(hits) :] == np.inf), name

@@ -42,6 +42,12 @@ def waypoints_from(stdout):
     return np.array(rows, dtype=float)
 
 
+def min_clearance_from(stdout):
+    """The path's smallest clearance that plan_path prints on its "path:" line (None: "unknown")."""
+    value = stdout.split("min clearance ")[1].split()[0]
+    return None if value == "unknown" else float(value)
+
+
 def test_plan_path_uses_zarr_and_numpy_only():
     tree = ast.parse((EXAMPLES / "plan_path.py").read_text())
     modules = {alias.name.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
@@ -64,11 +70,53 @@ def test_plan_path_reports_no_path_and_blocked_ends(tmp_path):
     proc = run_example("plan_path.py", path, "--start", 0.2, 0.2, "--goal", 0.8, 0.2)
     assert proc.returncode == 0, proc.stderr
     np.testing.assert_allclose(waypoints_from(proc.stdout)[[0, -1]], [[0.2, 0.2], [0.8, 0.2]], atol=1e-9)
+    assert min_clearance_from(proc.stdout) > 0  # the band's one layer is half a voxel below the map's top
     for start, reason in (((0.2, 0.5), "occupied by wall"), ((0.9, 0.0), "unknown"), ((5.0, 0.0), "outside")):
         proc = run_example("plan_path.py", path, "--start", *start, "--goal", 0.8, 0.2)
         assert proc.returncode == 2 and reason in proc.stderr, proc.stderr
     proc = run_example("plan_path.py", path, "--start", 0.2, 0.3, "--goal", 0.8, 0.2, "--robot-radius", 0.2)
     assert proc.returncode == 2 and "robot radius" in proc.stderr
+
+
+def pillar_room(tmp_path, esdf=True):
+    """A hand-made 2 x 1.2 x 0.5 map (voxels of 0.05, no training): a floor, and a pillar
+    (y 0.375 to 0.775) across the straight line from (0.2, 0.6) to (1.8, 0.6), leaving a
+    corridor of 0.4 on either side."""
+    label = np.full((40, 24, 10), FREE, np.int16)
+    label[:, :, 0] = 1  # floor
+    label[18:22, 8:16, :] = 3  # pillar
+    occupancy = np.where(label >= 0, 1.0, 0.0).astype(np.float32)
+    m = OccupancyMap(label, occupancy, 0.05, [0.0, 0.0, 0.0], {1: "floor", 3: "pillar"}, 0.05, units="metre")
+    return m, m.to_zarr(tmp_path / "pillar.zarr", esdf=esdf)
+
+
+def test_plan_path_keeps_its_clearance_from_the_stored_esdf(tmp_path):
+    m, path = pillar_room(tmp_path)
+    ends = ("--start", 0.2, 0.6, "--goal", 1.8, 0.6)
+    runs = {}
+    options = {"shortest": ("--clearance-weight", 0), "default": (), "margin": ("--min-clearance", 0.15)}
+    for name, extra in options.items():
+        proc = run_example("plan_path.py", path, *ends, *extra)
+        assert proc.returncode == 0, proc.stderr
+        height = float(proc.stdout.split("esdf at z = ")[1].split(",")[0])
+        assert height == pytest.approx(0.275)  # mid band: one voxel above the floor's top to the map's top
+        points = waypoints_from(proc.stdout)
+        # what the example read with zarr alone is the library's distance at the waypoints
+        clearance = m.distance(np.column_stack([points, np.full(len(points), height)]))
+        assert min_clearance_from(proc.stdout) == pytest.approx(clearance.min(), abs=1e-4)
+        runs[name] = clearance.min(), float(proc.stdout.split("length ")[1].split()[0])
+    assert 0 < runs["shortest"][0] < runs["default"][0] <= runs["margin"][0]  # the cost term keeps away
+    assert runs["margin"][0] >= 0.15 - 1e-9 and runs["shortest"][1] <= runs["default"][1]
+    proc = run_example("plan_path.py", path, *ends, "--min-clearance", 0.21)  # the corridors are 0.4 wide
+    assert proc.returncode == 2 and "min-clearance" in proc.stderr, proc.stderr
+    proc = run_example("plan_path.py", path, "--start", 0.2, 0.05, "--goal", 1.8, 0.6, "--min-clearance", 0.1)
+    assert proc.returncode == 2 and "clearance 0.075" in proc.stderr, proc.stderr  # 1.5 voxels from the map's side
+
+    _, old = pillar_room(tmp_path, esdf=False)  # as a map written before the ESDF was stored
+    proc = run_example("plan_path.py", old, *ends)
+    assert proc.returncode == 0 and "no esdf array" in proc.stdout and min_clearance_from(proc.stdout) is None
+    proc = run_example("plan_path.py", old, *ends, "--min-clearance", 0.1)
+    assert proc.returncode == 2 and "esdf" in proc.stderr
 
 
 @pytest.mark.slow
@@ -93,6 +141,10 @@ def test_plan_path_on_the_toy_map_goes_around_the_boxes(toy_build, tmp_path):
         assert not within.any(), TOY_NAMES[class_id]
     length = float(proc.stdout.split("length ")[1].split()[0])
     assert np.linalg.norm(goal - start) < length < 2 * np.linalg.norm(goal - start)
+    # the build's map stores its ESDF: the path keeps a clearance, the library's distance there
+    height = float(proc.stdout.split("esdf at z = ")[1].split(",")[0])
+    clearance = OccupancyMap.from_zarr(map_path).distance(np.column_stack([points, np.full(len(points), height)]))
+    assert 0 < min_clearance_from(proc.stdout) == pytest.approx(clearance.min(), abs=1e-3)
     image = Image.open(png)
     assert image.size[0] >= plan.label.shape[0] and image.mode == "RGB"
 

@@ -24,6 +24,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("render", ("scenelabel.render",)),
     ("fields", ("scenelabel.fields",)),
     ("query", ("scenelabel.query",)),
+    ("viz", ("scenelabel.viz",)),  # pictures, rerun recordings, the web viewer: below train, whose renders use it
     ("train", ("scenelabel.train",)),
     ("interface", ("scenelabel.cli", "scenelabel.__main__", "scenelabel")),
 )

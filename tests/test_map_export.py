@@ -43,27 +43,37 @@ def assert_same_store(a, b):
 
 
 @pytest.mark.parametrize(
-    "zarr_format, bounds, chunks, levels, visibility",
+    "zarr_format, bounds, chunks, levels, visibility, esdf",
     [
-        (3, None, (16, 16, 16), 3, True),  # a multiple of the shape on no axis: (33, 33, 10)
-        (2, CROP, (7, 9, 5), 4, True),  # bounds cut the field (occluders); level 3 pools 8 > chunk edge
-        (3, None, (64, 64, 64), None, False),  # default chunks, default levels, bounds rule only
+        (3, None, (16, 16, 16), 3, True, True),  # a multiple of the shape on no axis: (33, 33, 10)
+        (2, CROP, (7, 9, 5), 4, True, True),  # bounds cut the field (occluders); level 3 pools 8 > chunk edge
+        (3, None, (64, 64, 64), None, False, False),  # default chunks, default levels, bounds rule only, no ESDF
     ],
-    ids=["v3-visibility", "v2-cropped-odd-chunks", "v3-no-visibility"],
+    ids=["v3-visibility", "v2-cropped-odd-chunks", "v3-no-visibility-no-esdf"],
 )
-def test_chunked_store_equals_the_in_memory_map(toy_build, tmp_path, zarr_format, bounds, chunks, levels, visibility):
+def test_chunked_store_equals_the_in_memory_map(
+    toy_build, tmp_path, zarr_format, bounds, chunks, levels, visibility, esdf
+):
     field = toy_build.field
-    expected = field.occupancy_map(0.1, bounds, visibility=visibility).to_zarr(
-        tmp_path / "memory.zarr", zarr_format=zarr_format, chunks=chunks, levels=levels
+    in_memory = field.occupancy_map(0.1, bounds, visibility=visibility)
+    expected = in_memory.to_zarr(
+        tmp_path / "memory.zarr", zarr_format=zarr_format, chunks=chunks, levels=levels, esdf=esdf
     )
     path = write_occupancy_map(
         field, tmp_path / "chunked.zarr", 0.1, bounds=bounds, zarr_format=zarr_format, chunks=chunks,
-        levels=levels, visibility=visibility,
+        levels=levels, visibility=visibility, esdf=esdf,
     )
     assert path == (tmp_path / "chunked.zarr").absolute()
-    names = assert_same_store(expected, path)
+    names = assert_same_store(expected, path)  # the esdf arrays and attributes included
     n_levels = zarr.open_group(str(path), mode="r").attrs["n_levels"]
     assert n_levels == (levels or 2) and all(f"levels/{level}/probs" in names for level in range(1, n_levels))
+    # the ESDF the writer computed from the labels it read back is the in-memory map's, level by level
+    assert all((f"levels/{level}/esdf" in names) == esdf for level in range(1, n_levels)) and ("esdf" in names) == esdf
+    if esdf:
+        g = zarr.open_group(str(path), mode="r")
+        for level in range(n_levels):
+            stored = g["esdf" if level == 0 else f"levels/{level}/esdf"][...]
+            np.testing.assert_array_equal(stored, in_memory.downsample(2**level).esdf(), err_msg=f"level {level}")
     # the cases mean something: a map with occupied, free and (with visibility) unobserved voxels
     label = zarr.open_group(str(path), mode="r")["label"][...]
     assert (label >= 0).any() and (label == FREE).any() and (label == UNKNOWN).any() == visibility
@@ -130,6 +140,10 @@ def test_store_validates_and_reads_back(toy_build, tmp_path, zarr_format):
 
     assert OccupancyMap.from_zarr(path) == expected
     assert OccupancyMap.from_zarr(path, level=1) == expected.downsample(2)
+    # the stored ESDF (schema-checked above) gives a planner the in-memory map's distances
+    assert g.attrs["esdf"] == {"unknown": "occupied", "units": a["units"]}
+    xyz = np.random.default_rng(0).uniform(*expected.bounds, size=(100, 3))
+    np.testing.assert_array_equal(OccupancyMap.from_zarr(path).distance(xyz), expected.distance(xyz))
 
 
 # ---------------------------------------------------------------------------- failures

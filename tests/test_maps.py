@@ -264,8 +264,11 @@ def test_round_trip(tmp_path, zarr_format):
     assert back == m
     group = zarr.open_group(str(out), mode="r")
     assert group.metadata.zarr_format == zarr_format
-    assert group.attrs.asdict() == {**m.attributes(), "level": 0, "n_levels": 1, **maps.ngff_multiscales([m], zarr_format)}
-    for name in ("label", "occupancy"):
+    esdf_attrs = {"esdf": {"unknown": "occupied", "units": "metre"}}  # the stored ESDF's rule and unit
+    assert group.attrs.asdict() == {
+        **m.attributes(), "level": 0, "n_levels": 1, **esdf_attrs, **maps.ngff_multiscales([m], zarr_format)
+    }
+    for name in ("label", "occupancy", "esdf"):
         array = group[name]
         assert array.chunks == (2, 3, 4)
         if zarr_format == 3:
@@ -709,7 +712,7 @@ def test_round_trip_with_probs_and_levels(tmp_path, zarr_format):
         OccupancyMap.from_zarr(path, level=-1)
     # level 0 keeps its v1 paths; the arrays carry dimension names and CF attributes
     group = zarr.open_group(str(path), mode="r")
-    assert set(group.array_keys()) == {"label", "occupancy", "probs", "confidence"}
+    assert set(group.array_keys()) == {"label", "occupancy", "probs", "confidence", "esdf"}
     assert group["probs"].shape == SHAPE + (3,) and group["probs"].chunks == (2, 2, 2, 3)
     label_attrs = group["label"].attrs
     assert label_attrs["flag_values"] == [-2, -1, 0, 3, 7]
@@ -736,7 +739,7 @@ def test_ome_ngff_multiscales_values(tmp_path, zarr_format):
         assert "ome" not in attrs
         multiscales = attrs["multiscales"]
         assert all(entry["version"] == "0.4" for entry in multiscales)
-    assert [entry["name"] for entry in multiscales] == ["label", "occupancy", "confidence"]
+    assert [entry["name"] for entry in multiscales] == ["label", "occupancy", "confidence", "esdf"]
     group = zarr.open_group(str(path), mode="r")
     for entry in multiscales:
         assert entry["axes"] == [{"name": n, "type": "space", "unit": "meter"} for n in "xyz"]

@@ -67,8 +67,14 @@ def test_query_rays_direction_length_does_not_matter(field):
 def test_near_far_limits_depth(field):
     o = np.array([[0.0, -2.0, 1.5]])
     d = np.array([[0.0, 1.0, -0.8]])
-    r = field.query_rays(o, d, near=0.5, far=0.6)
-    assert 0.5 - 1e-6 <= r.depth[0] <= 0.6 + 1e-6
+    above = field.query_rays(o, d, near=0.5, far=0.6)  # [near, far] lies above the bounds (z > 0.75)
+    assert above.label[0] == UNKNOWN and above.depth[0] == np.inf
+    r = field.query_rays(o, d, near=1.3, far=1.5)  # inside the bounds: a hit within [near, far], or none
+    hit = r.opacity[0] >= 0.5
+    assert r.label[0] != UNKNOWN
+    assert (hit and 1.3 - 1e-6 <= r.depth[0] <= 1.5 + 1e-6) or (not hit and r.depth[0] == np.inf and r.label[0] == FREE)
+    down = field.query_rays([[0.5, -1.0, 1.5]], [[0.0, 0.0, -1.0]], near=0.5)  # on to the floor (or a box on it)
+    assert down.label[0] >= 0 and 0.5 < down.depth[0] < 1.5 + 0.17
 
 
 def test_render_shapes_conventions_and_smoothing(field):
@@ -114,16 +120,17 @@ def test_incompatible_checkpoint_version(tmp_path):
 
 def test_geometry_edge_cases(field):
     lo, hi = field.aabb
-    # a ray starting inside the bounds (and inside the floor slab) answers finitely
+    # a ray starting inside the bounds (and inside the floor slab) answers by the contract
     inside = field.query_rays([[0.0, 0.0, -0.01]], [[0.0, 0.0, 1.0]])
-    assert np.all(np.isfinite(inside.depth)) and inside.depth[0] >= 0
+    assert inside.label[0] != UNKNOWN and np.isfinite(inside.depth[0]) == (inside.label[0] >= 0)
+    assert inside.depth[0] >= 0
     # a camera exactly at the bounds' corner, looking at the centre
     corner = hi.copy()
     r = field.query_rays([corner], [0.5 * (lo + hi) - corner])
     assert r.label[0] != UNKNOWN and np.isfinite(r.depth[0])
-    # a ray pointing away from the bounds: UNKNOWN, finite depth
+    # a ray pointing away from the bounds: UNKNOWN, no depth (the ray contract)
     away = field.query_rays([hi + 1.0], [[1.0, 1.0, 1.0]])
-    assert away.label[0] == UNKNOWN and np.isfinite(away.depth[0])
+    assert away.label[0] == UNKNOWN and away.depth[0] == np.inf
 
 
 def test_memory_does_not_grow_over_many_queries(field):

@@ -28,6 +28,20 @@ if ! { ldconfig -p || /sbin/ldconfig -p; } 2>/dev/null | grep -q "libusb-1.0.so.
     echo "setup: warning: libusb-1.0 is missing and open3d (tests) needs it: run 'sudo apt-get install libusb-1.0-0'" >&2
   fi
 fi
+# The web viewer's browser test and tools/screenshots.py drive a headless Chromium (Debian: chromium);
+# without one that test is skipped. Setup never fails for it.
+if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1 \
+    && ! command -v google-chrome >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "setup: installing chromium (Debian) for the viewer's browser test" >&2
+    if ! { DEBIAN_FRONTEND=noninteractive apt-get update -qq >/dev/null \
+        && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }; then
+      echo "setup: warning: could not install chromium: the viewer's browser test will be skipped" >&2
+    fi
+  else
+    echo "setup: warning: no chromium: the viewer's browser test is skipped (run 'sudo apt-get install chromium')" >&2
+  fi
+fi
 echo "setup: installing scenelabel and its dependencies" >&2
 if ! .venv/bin/python -m pip install -q -e ".[test]" > .venv/setup.log 2>&1; then
   cat .venv/setup.log >&2

@@ -6,7 +6,6 @@ Pixel centres are at +0.5; ``directions`` are unit vectors in the world frame; a
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from scenelabel.errors import InputError
@@ -44,6 +43,8 @@ def camera_directions_from_pixels(
     pixels = np.asarray(pixels, dtype=np.float64)
     if distortion is not None and np.any(np.asarray(distortion) != 0):
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        import cv2  # only for distortion: a planner's process answering rays need not load OpenCV
+
         xy = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, np.asarray(distortion, np.float64)).reshape(-1, 2)
     else:
         xy = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy], axis=-1)

@@ -31,6 +31,9 @@ __all__ = [
     "OCCUPANCY_ARRAY",
     "PROBS_ARRAY",
     "CONFIDENCE_ARRAY",
+    "ESDF_ARRAY",
+    "ESDF_DTYPE",
+    "ESDF_UNKNOWN",
     "LEVELS_GROUP",
     "LABEL_DTYPE",
     "OCCUPANCY_DTYPE",
@@ -78,6 +81,12 @@ LABEL_ARRAY = "label"
 OCCUPANCY_ARRAY = "occupancy"
 PROBS_ARRAY = "probs"
 CONFIDENCE_ARRAY = "confidence"
+ESDF_ARRAY = "esdf"
+"""The stored Euclidean signed distance field (world units; also the name of its group attribute)."""
+ESDF_DTYPE = np.dtype(np.float32)
+ESDF_UNKNOWN = "occupied"
+"""The rule of the stored ``esdf`` array: UNKNOWN voxels and the map's outside are obstacles
+(conservative for planners; :mod:`scenelabel.maps.esdf`)."""
 LEVELS_GROUP = "levels"
 LABEL_DTYPE = np.dtype(np.int16)
 OCCUPANCY_DTYPE = np.dtype(np.float32)

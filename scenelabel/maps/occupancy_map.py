@@ -16,6 +16,9 @@ Numpy only (no torch). Conventions (docs/conventions.md, "Occupancy grids"):
   channel c for the c-th class of ``classes`` (ascending id); 0 where UNKNOWN.
 - Optional ``confidence``: uint8 [nx, ny, nz], ``1 - entropy / log C`` quantised (code / 255);
   0 where UNKNOWN.
+- The ESDF (:meth:`OccupancyMap.esdf`) is derived from ``label``, not a field: :meth:`OccupancyMap.to_zarr`
+  stores it (rule "occupied") as the ``esdf`` array of every level and :meth:`OccupancyMap.from_zarr`
+  starts from that array when present.
 - A pyramid level ``L`` halves the resolution ``L`` times (:meth:`OccupancyMap.downsample`,
   :func:`pool_labels`): occupied if any child is occupied, FREE only if every child is FREE,
   UNKNOWN otherwise (conservative for planners).
@@ -46,6 +49,9 @@ from scenelabel.maps.codes import (
     DEFAULT_UNITS,
     DEFAULT_UNKNOWN_RULE,
     DIMENSION_NAMES,
+    ESDF_ARRAY,
+    ESDF_DTYPE,
+    ESDF_UNKNOWN,
     FORMAT_NAME,
     FORMAT_VERSION,
     FREE,
@@ -82,9 +88,12 @@ from scenelabel.maps.zarr_io import (
     array_chunks,
     check_target,
     checked_attributes,
+    esdf_array_attributes,
+    esdf_group_attributes,
     level_group,
     root_attributes,
     staged_group,
+    stored_esdf,
 )
 
 __all__ = ["OccupancyMap"]
@@ -118,7 +127,8 @@ class OccupancyMap:
             "visibility" (also: observed by no training camera).
 
     Arrays are converted (copy-free when already right) and checked on construction, and kept
-    as read-only views: the instance and its arrays are frozen (copy an array to edit it).
+    as read-only views: the instance and its arrays are frozen (copy an array to edit it). The
+    ESDF (:meth:`esdf`) is derived from ``label``, not a field, and takes no part in ``==``.
     """
 
     label: np.ndarray
@@ -241,7 +251,8 @@ class OccupancyMap:
         """The map's Euclidean signed distance field [nx, ny, nz] float32, world units: distance of
         each voxel centre to the nearest obstacle face, negative inside obstacles; UNKNOWN voxels and
         the map's outside count as obstacles (``unknown="occupied"``) or UNKNOWN as free space
-        (``"free"``). :mod:`scenelabel.maps.esdf` has the rule; computed once per rule (read-only)."""
+        (``"free"``). :mod:`scenelabel.maps.esdf` has the rule; computed once per rule (read-only), or
+        for a map read by :meth:`from_zarr` taken from the store's ``esdf`` array (rule "occupied")."""
         cache = self.__dict__.setdefault("_esdf", {})
         if unknown not in cache:
             cache[unknown] = read_only(signed_distance(self.label, self.voxel_size, unknown))
@@ -398,11 +409,13 @@ class OccupancyMap:
         *,
         overwrite: bool = True,
         levels: int | None = None,
+        esdf: bool = True,
     ) -> Path:
         """Write the map and its pyramid as a zarr group (directory store), atomically.
 
-        Layout (docs/formats.md): level 0's arrays at the root (``label``, ``occupancy``, and
-        ``probs`` / ``confidence`` when the map has them), level L >= 1 in the sub-group
+        Layout (docs/formats.md): level 0's arrays at the root (``label``, ``occupancy``,
+        ``probs`` / ``confidence`` when the map has them, and ``esdf``: each level's own
+        :meth:`esdf` with the rule "occupied", float32), level L >= 1 in the sub-group
         ``levels/L`` with the same arrays and its own map attributes (:meth:`pyramid`); the
         root also carries OME-NGFF multiscales metadata (``multiscales``, NGFF 0.4, in zarr
         format 2; ``ome``, NGFF 0.5, in zarr format 3).
@@ -419,6 +432,7 @@ class OccupancyMap:
                 keeps all classes in one chunk).
             overwrite: replace an existing zarr group at ``path``; otherwise raise.
             levels: pyramid levels to write, level 0 included; None: :func:`default_levels`.
+            esdf: also write the ``esdf`` arrays (and the ``esdf`` group attributes).
         Returns:
             the absolute path written.
         Raises:
@@ -433,27 +447,29 @@ class OccupancyMap:
             root = zarr.open_group(str(tmp), mode="w", zarr_format=zarr_format)
             for level, level_map in enumerate(pyramid):
                 group = root if level == 0 else level_group(root, level)
-                level_map.write_arrays(group, zarr_format, chunks)
+                level_map.write_arrays(group, zarr_format, chunks, esdf=esdf)
                 if level:
-                    group.attrs.update(level_map.group_attributes(level, len(pyramid)))
+                    group.attrs.update(level_map.group_attributes(level, len(pyramid), esdf=esdf))
             # last: marks the map complete
-            root.attrs.update(root_attributes(pyramid, zarr_format))
+            root.attrs.update(root_attributes(pyramid, zarr_format, esdf=esdf))
         return path
 
-    def group_attributes(self, level: int, n_levels: int) -> dict[str, Any]:
-        """Attributes of the group holding this map as pyramid level ``level`` of ``n_levels``."""
-        return {**self.attributes(), "level": level, "n_levels": n_levels}
+    def group_attributes(self, level: int, n_levels: int, esdf: bool = True) -> dict[str, Any]:
+        """Attributes of the group holding this map as pyramid level ``level`` of ``n_levels``
+        (with the ``esdf`` attribute when the group holds the ``esdf`` array)."""
+        extra = esdf_group_attributes(self.units) if esdf else {}
+        return {**self.attributes(), "level": level, "n_levels": n_levels, **extra}
 
-    def write_arrays(self, group: Any, zarr_format: int, chunks: tuple[int, int, int]) -> None:
-        """Write this map's arrays into a zarr group (no group attributes)."""
-        for name, array in self.create_arrays(group, zarr_format, chunks, self.shape).items():
-            array[...] = getattr(self, name)
+    def write_arrays(self, group: Any, zarr_format: int, chunks: tuple[int, int, int], esdf: bool = True) -> None:
+        """Write this map's arrays into a zarr group (no group attributes); ``esdf``: :meth:`esdf` too."""
+        for name, array in self.create_arrays(group, zarr_format, chunks, self.shape, esdf=esdf).items():
+            array[...] = self.esdf(ESDF_UNKNOWN) if name == ESDF_ARRAY else getattr(self, name)
 
     def create_arrays(
-        self, group: Any, zarr_format: int, chunks: tuple[int, int, int], shape: tuple[int, int, int]
+        self, group: Any, zarr_format: int, chunks: tuple[int, int, int], shape: tuple[int, int, int], esdf: bool = True
     ) -> dict[str, Any]:
         """Create (unfilled) the arrays of a map of this one's classes, with ``probs`` /
-        ``confidence`` when this map has them, and ``shape``, in a zarr group.
+        ``confidence`` when this map has them, ``esdf`` when asked, and ``shape``, in a zarr group.
 
         Returns:
             name -> zarr array; spatial chunks ``chunks`` clipped to ``shape`` (:func:`array_chunks`).
@@ -483,6 +499,8 @@ class OccupancyMap:
                 "description": "1 - entropy / log(C) of the class distribution, quantised: code / 255; 0 where UNKNOWN",
                 **scaled,
             }))
+        if esdf:
+            arrays.append((ESDF_ARRAY, ESDF_DTYPE, shape, 0.0, esdf_array_attributes(self.units)))
         created = {}
         for name, dtype, array_shape, fill, array_attrs in arrays:
             dims = PROBS_DIMENSION_NAMES if len(array_shape) == 4 else DIMENSION_NAMES
@@ -504,10 +522,14 @@ class OccupancyMap:
         Args:
             path: the map's root group (a ``levels/L`` sub-group also reads, as a map of its own).
             level: pyramid level to read (0: full resolution; see the root's ``n_levels``).
+        Returns:
+            the map; when the group has an ``esdf`` array, :meth:`esdf` returns it (checked against
+            ``label``) for its rule instead of computing it.
         Raises:
             InputError naming the path and the attribute or array at fault: not a zarr group,
             not a scenelabel map, a newer format_version, an invalid or missing attribute, a
-            missing or malformed array, a level the map does not have.
+            missing or malformed array (an ``esdf`` that does not match ``label`` included), a
+            level the map does not have.
         """
         import zarr
 
@@ -538,6 +560,7 @@ class OccupancyMap:
             (OCCUPANCY_ARRAY, OCCUPANCY_DTYPE, True),
             (PROBS_ARRAY, QUANTISED_DTYPE, False),
             (CONFIDENCE_ARRAY, QUANTISED_DTYPE, False),
+            (ESDF_ARRAY, ESDF_DTYPE, False),
         ):
             try:
                 node = group[name]
@@ -554,7 +577,7 @@ class OccupancyMap:
         classes = {int(c["id"]): str(c["name"]) for c in attrs["classes"]}
         colors = {int(c["id"]): tuple(c["color"]) for c in attrs["classes"] if c.get("color") is not None}
         try:
-            return OccupancyMap(
+            occ_map = OccupancyMap(
                 label=arrays[LABEL_ARRAY],
                 occupancy=arrays[OCCUPANCY_ARRAY],
                 voxel_size=float(attrs["voxel_size"]),
@@ -571,8 +594,11 @@ class OccupancyMap:
                 confidence=arrays.get(CONFIDENCE_ARRAY),
                 unknown_rule=attrs.get("unknown_rule", DEFAULT_UNKNOWN_RULE),  # version 1: bounds
             )
+            if ESDF_ARRAY in arrays:  # maps written before it have none: esdf() computes it then
+                occ_map.__dict__["_esdf"] = stored_esdf(group, arrays[ESDF_ARRAY], occ_map.label)
         except InputError as exc:
             raise InputError(exc.problem, path=path, field=exc.field) from None
+        return occ_map
 
 
 def _flag_word(class_id: int, name: str) -> str:

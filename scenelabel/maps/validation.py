@@ -7,7 +7,16 @@ from typing import Any, Mapping
 import numpy as np
 
 from scenelabel.errors import InputError
-from scenelabel.maps.codes import LABEL_DTYPE, MAX_CLASS_ID, QUANTISED_DTYPE, UNKNOWN, uint8_from_unit
+from scenelabel.maps.codes import (
+    ESDF_ARRAY,
+    ESDF_DTYPE,
+    LABEL_DTYPE,
+    MAX_CLASS_ID,
+    QUANTISED_DTYPE,
+    UNKNOWN,
+    uint8_from_unit,
+)
+from scenelabel.maps.esdf import obstacle_mask
 
 __all__ = [
     "check_classes",
@@ -15,6 +24,7 @@ __all__ = [
     "check_occupancy",
     "check_quantised",
     "check_colors",
+    "check_esdf",
     "read_only",
 ]
 
@@ -90,6 +100,38 @@ def check_quantised(values: Any, label: np.ndarray, shape: tuple[int, ...], name
     if np.any(codes[label == UNKNOWN]):
         raise InputError(f"{name} must be 0 where label is UNKNOWN (-2)", field=name)
     return read_only(codes)
+
+
+def check_esdf(values: Any, label: np.ndarray, unknown: str) -> np.ndarray:
+    """A stored ESDF checked against the map's labels: float32 of label's shape, no NaN, negative
+    exactly at the obstacle voxels of rule ``unknown`` and positive elsewhere (the values are at
+    least half a voxel from 0, so this catches an array of another map or a missing chunk).
+
+    Args:
+        values: [nx, ny, nz] float32.
+        label: [nx, ny, nz] int16, the map's labels.
+        unknown: the rule it was computed with ("occupied" or "free").
+    Returns:
+        a read-only view of ``values``.
+    Raises:
+        InputError (field ``esdf``).
+    """
+    array = np.asarray(values)
+    if array.shape != label.shape or array.dtype != ESDF_DTYPE:
+        raise InputError(
+            f"{ESDF_ARRAY} must be {ESDF_DTYPE} of shape {list(label.shape)}, got {array.dtype} {list(array.shape)}",
+            field=ESDF_ARRAY,
+        )
+    if np.isnan(array).any():
+        raise InputError(f"{ESDF_ARRAY} holds NaN", field=ESDF_ARRAY)
+    obstacle = obstacle_mask(label, unknown)
+    if not (np.array_equal(array < 0, obstacle) and np.array_equal(array > 0, ~obstacle)):
+        raise InputError(
+            f"{ESDF_ARRAY} does not match label: it must be negative exactly at the obstacles "
+            f"(unknown={unknown!r}) and positive elsewhere",
+            field=ESDF_ARRAY,
+        )
+    return read_only(array)
 
 
 def check_colors(

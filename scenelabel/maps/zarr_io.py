@@ -1,6 +1,7 @@
 """Zarr pieces of an occupancy map store (docs/formats.md): chunk shapes, the pyramid's level groups,
 the root attributes and their OME-NGFF multiscales metadata, checks of a write's target, the
-atomic staged write, and a group's attributes checked on read.
+atomic staged write, a group's attributes checked on read, and the stored ESDF (its attributes,
+its write from a group's ``label`` array, its check on read).
 
 Used by :meth:`OccupancyMap.to_zarr` / :meth:`OccupancyMap.from_zarr` and by
 :func:`scenelabel.query.map_writer.write_occupancy_map`, which write the same store. Maps are
@@ -18,10 +19,12 @@ from typing import Any, Iterator
 import numpy as np
 
 from scenelabel.errors import InputError
-from scenelabel.geometry.lattice import shape3, world_from_grid_matrix
+from scenelabel.geometry.lattice import iter_chunks, shape3, world_from_grid_matrix
 from scenelabel.maps.codes import (
     CONFIDENCE_ARRAY,
     DIMENSION_NAMES,
+    ESDF_ARRAY,
+    ESDF_UNKNOWN,
     FORMAT_NAME,
     FORMAT_VERSION,
     LABEL_ARRAY,
@@ -31,8 +34,10 @@ from scenelabel.maps.codes import (
     NGFF_VERSION_V3,
     OCCUPANCY_ARRAY,
 )
+from scenelabel.maps.esdf import UNKNOWN_AS, signed_distance_blocks
 from scenelabel.maps.pyramid import LABEL_POOLING_RULE
 from scenelabel.maps.schema import validate_attributes
+from scenelabel.maps.validation import check_esdf
 
 __all__ = [
     "array_chunks",
@@ -42,7 +47,13 @@ __all__ = [
     "staged_group",
     "checked_attributes",
     "ngff_multiscales",
+    "esdf_group_attributes",
+    "esdf_array_attributes",
+    "write_esdf",
+    "stored_esdf",
 ]
+
+_ESDF_LEVEL_RULE = "recomputed from the level's own labels (not pooled): obstacles are classes, UNKNOWN and the outside"
 
 # Relative tolerance for origin_corner == origin - voxel_size / 2 on read.
 _CORNER_RTOL = 1e-9
@@ -59,11 +70,71 @@ def level_group(root: Any, level: int) -> Any:
     return root.require_group(LEVELS_GROUP).require_group(str(level))
 
 
-def root_attributes(pyramid: list[Any], zarr_format: int) -> dict[str, Any]:
+def root_attributes(pyramid: list[Any], zarr_format: int, esdf: bool = True) -> dict[str, Any]:
     """The root group's attributes of a written pyramid: level 0's map attributes, ``level``,
-    ``n_levels`` and the OME-NGFF metadata. (Only metadata of the levels is used, never their
-    arrays.)"""
-    return {**pyramid[0].group_attributes(0, len(pyramid)), **ngff_multiscales(pyramid, zarr_format)}
+    ``n_levels``, ``esdf`` (when the levels have the array) and the OME-NGFF metadata. (Only
+    metadata of the levels is used, never their arrays.)"""
+    return {
+        **pyramid[0].group_attributes(0, len(pyramid), esdf=esdf),
+        **ngff_multiscales(pyramid, zarr_format, esdf=esdf),
+    }
+
+
+def esdf_group_attributes(units: str) -> dict[str, Any]:
+    """The group attribute ``esdf`` of a level whose group holds the ``esdf`` array: the rule it was
+    computed with (:data:`ESDF_UNKNOWN`) and the unit of its values (the map's ``units``)."""
+    return {ESDF_ARRAY: {"unknown": ESDF_UNKNOWN, "units": units}}
+
+
+def esdf_array_attributes(units: str) -> dict[str, Any]:
+    """The attributes of an ``esdf`` array (besides its dimension names)."""
+    return {
+        "description": (
+            "signed Euclidean distance of the voxel centre to the nearest face between an obstacle voxel and "
+            "a free one, world units: positive in free space, negative inside obstacles; obstacles are the "
+            "voxels with a class, UNKNOWN voxels and the map's outside (unknown = occupied); computed from "
+            "this level's label"
+        ),
+        **esdf_group_attributes(units)[ESDF_ARRAY],
+    }
+
+
+def write_esdf(group: Any, voxel_size: float) -> None:
+    """Fill a map group's ``esdf`` array from its ``label`` array (:data:`ESDF_UNKNOWN` rule), both
+    read and written chunk by chunk.
+
+    Memory: the whole grid's obstacle mask (1 byte per voxel) and the distance transform
+    (:func:`scenelabel.maps.esdf.signed_distance_of_mask`: about 19 bytes per voxel at its peak,
+    the mask and the float32 result included), in this process; never the label grid itself.
+
+    Args:
+        group: a zarr group with ``label`` and an (unfilled) ``esdf`` array of the same shape.
+        voxel_size: the level's voxel edge, world units.
+    """
+    label, target = group[LABEL_ARRAY], group[ESDF_ARRAY]
+    blocks = ((block, label[block]) for block in iter_chunks(label.shape, label.chunks))
+    esdf = signed_distance_blocks(blocks, label.shape, voxel_size, ESDF_UNKNOWN)
+    for block in iter_chunks(target.shape, target.chunks):
+        target[block] = esdf[block]
+
+
+def stored_esdf(group: Any, values: np.ndarray, label: np.ndarray) -> dict[str, np.ndarray]:
+    """The ESDF a map read from ``group`` starts with, from the group's ``esdf`` array.
+
+    Args:
+        group: the map's zarr group (its ``esdf`` array's attribute ``unknown`` names the rule).
+        values: [nx, ny, nz] float32, the array's values.
+        label: [nx, ny, nz] int16, the map's labels.
+    Returns:
+        {rule: read-only values}, checked against ``label`` (:func:`check_esdf`); {} when the rule
+        is not one this version knows (the ESDF is then computed on demand).
+    Raises:
+        InputError (field ``esdf``): values that do not match ``label``.
+    """
+    rule = group[ESDF_ARRAY].attrs.get("unknown")
+    if rule not in UNKNOWN_AS:
+        return {}
+    return {rule: check_esdf(values, label, rule)}
 
 
 def check_target(path: Any, zarr_format: Any, chunks: Any, overwrite: bool) -> tuple[int, tuple[int, int, int], Path]:
@@ -147,19 +218,20 @@ def checked_attributes(group: Any, path: Path) -> dict[str, Any]:
     return attrs
 
 
-def ngff_multiscales(levels: list[Any], zarr_format: int) -> dict[str, Any]:
+def ngff_multiscales(levels: list[Any], zarr_format: int, esdf: bool = True) -> dict[str, Any]:
     """OME-NGFF multiscales metadata of a pyramid written by :meth:`OccupancyMap.to_zarr`.
 
-    One multiscale per spatial array (``label``, ``occupancy``, ``confidence`` when present;
-    ``probs`` is channel-last, which NGFF does not allow, so it is not listed). Axes x, y, z of
-    type "space" (unit "meter" when the map is metric, none otherwise); each level's dataset
-    maps an index to the world with ``scale = voxel_size`` then ``translation = origin`` (the
-    centre of voxel [0, 0, 0] of that level).
+    One multiscale per spatial array (``label``, ``occupancy``, ``confidence`` when present,
+    ``esdf`` when written; ``probs`` is channel-last, which NGFF does not allow, so it is not
+    listed). Axes x, y, z of type "space" (unit "meter" when the map is metric, none otherwise);
+    each level's dataset maps an index to the world with ``scale = voxel_size`` then
+    ``translation = origin`` (the centre of voxel [0, 0, 0] of that level).
 
     Args:
         levels: the pyramid, level 0 first (:meth:`OccupancyMap.pyramid`).
         zarr_format: 2 -> ``{"multiscales": [...]}`` (NGFF 0.4); 3 -> ``{"ome": {"version":
             "0.5", "multiscales": [...]}}`` (NGFF 0.5).
+        esdf: the levels have an ``esdf`` array.
     Returns:
         the group attributes to add.
     """
@@ -171,8 +243,10 @@ def ngff_multiscales(levels: list[Any], zarr_format: int) -> dict[str, Any]:
         (LABEL_ARRAY, "scenelabel.pool_labels", LABEL_POOLING_RULE),
         (OCCUPANCY_ARRAY, "max", "max over the children; 0 where the coarse label is UNKNOWN"),
         (CONFIDENCE_ARRAY, "scenelabel.pool_probs", "1 - entropy / log C of the pooled class probabilities"),
+        (ESDF_ARRAY, "scenelabel.signed_distance", _ESDF_LEVEL_RULE),
     ):
-        if getattr(base, name) is None:
+        present = esdf if name == ESDF_ARRAY else getattr(base, name) is not None
+        if not present:
             continue
         datasets = [
             {

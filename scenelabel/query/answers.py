@@ -19,6 +19,7 @@ __all__ = [
     "softmax64",
     "inside_bounds",
     "labels_from_answers",
+    "ray_contract",
     "ray_query_inputs",
     "checked_array",
 ]
@@ -39,11 +40,14 @@ class PointQuery:
 
 @dataclass
 class RayQuery:
-    """Answers for N rays. ``label``: class id where the ray hits (opacity ≥ 0.5), FREE if it
-    crosses the modelled bounds without hitting, UNKNOWN if it never enters them."""
+    """Answers for N rays, under the ray contract (docs/conventions.md, "Rays"; :func:`ray_contract`):
+    a ray that hits (opacity ≥ 0.5 within its interval) has a finite ``depth`` and its class id
+    as ``label``; one that crosses the modelled bounds without hitting has depth ``inf`` and
+    label FREE; one that never enters them (or whose [near, far] is empty) has depth ``inf``
+    and label UNKNOWN."""
 
     rgb: np.ndarray  # [N, 3]
-    depth: np.ndarray  # [N] distance along the unit direction, world units
+    depth: np.ndarray  # [N] distance along the unit direction, world units; inf: no hit
     opacity: np.ndarray  # [N]
     probs: np.ndarray  # [N, C]
     class_ids: np.ndarray  # [C]
@@ -58,7 +62,7 @@ class RenderResult:
     """Images of one camera."""
 
     rgb: np.ndarray  # [H, W, 3] float32 in [0, 1]
-    depth: np.ndarray  # [H, W] distance along each pixel's unit ray
+    depth: np.ndarray  # [H, W] composited depth along each pixel's unit ray (also where nothing was hit: an image to draw)
     opacity: np.ndarray  # [H, W]
     probs: np.ndarray  # [H, W, C] (smoothed when smooth_sigma was given)
     label: np.ndarray  # [H, W] class ids; FREE / UNKNOWN where nothing was hit
@@ -91,6 +95,24 @@ def labels_from_answers(hit_label: np.ndarray, opacity: np.ndarray, seen: np.nda
     occupancy, a ray's Σ w) is ≥ OCCUPIED_THRESHOLD, FREE where lower, UNKNOWN where ``seen`` is
     False (a point outside the bounds, a ray that never enters them). All [N]."""
     return np.where(seen, np.where(opacity >= OCCUPIED_THRESHOLD, hit_label, FREE), UNKNOWN)
+
+
+def ray_contract(
+    depth: np.ndarray, opacity: np.ndarray, hit_label: np.ndarray, entered: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ray contract shared by ``SemanticField.query_rays``, ``BakedField.query_rays`` and
+    ``OccupancyMap.cast_rays`` (docs/conventions.md, "Rays"): where a ray's ``opacity`` reaches
+    OCCUPIED_THRESHOLD it hits, at ``depth`` with ``hit_label``; elsewhere its depth is ``inf``
+    and its label FREE (it crossed the bounds) or UNKNOWN (``entered`` False: it never did).
+
+    Args:
+        depth: [N] composited depth, world units; opacity: [N] Σ w; hit_label: [N] class id of the
+            composited probabilities; entered: [N] bool, the ray's [t_min, t_max] is not empty.
+    Returns:
+        depth [N] float64 (``inf`` without a hit), label [N] (:func:`labels_from_answers`).
+    """
+    hit = entered & (opacity >= OCCUPIED_THRESHOLD)
+    return np.where(hit, depth, np.inf), labels_from_answers(hit_label, opacity, entered)
 
 
 def ray_query_inputs(origins, directions, near, far) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:

@@ -21,25 +21,37 @@ lattice. Both are safe to call from several threads at once (nothing is modified
 
 from __future__ import annotations
 
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scenelabel._version import __version__
 from scenelabel.errors import InputError
 from scenelabel.maps import ray_box_distances, uint8_from_unit
+from scenelabel.maps.zarr_io import check_target, staged_group
 from scenelabel.query.answers import (
     PointQuery,
     RayQuery,
     checked_array,
     inside_bounds,
     labels_from_answers,
+    ray_contract,
     ray_query_inputs,
     softmax64,
 )
-from scenelabel.query.field import SemanticField
-from scenelabel.render.marcher import EARLY_STOP_TRANS
+from scenelabel.render.constants import EARLY_STOP_TRANS
 
-__all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES"]
+if TYPE_CHECKING:  # the field (and torch) only for baking; a saved BakedField loads without them
+    from scenelabel.query.field import SemanticField
+
+__all__ = ["BakedField", "trilinear", "composite_baked_rays", "MAX_BAKE_BYTES", "BAKED_FORMAT", "BAKED_FORMAT_VERSION"]
+
+BAKED_FORMAT = "scenelabel.baked_field"
+"""The ``format`` attribute of a saved BakedField's zarr group (:meth:`BakedField.save`)."""
+
+BAKED_FORMAT_VERSION = 1
+"""Its layout version; :meth:`BakedField.load` refuses other versions."""
 
 MAX_BAKE_BYTES = 2 * 1024**3
 """A bake refuses a lattice whose values would take more memory than this (ask for a larger voxel size)."""
@@ -228,7 +240,7 @@ class BakedField:
         )
 
     @classmethod
-    def from_field(cls, field: SemanticField, voxel_size: float | None = None) -> "BakedField":
+    def from_field(cls, field: "SemanticField", voxel_size: float | None = None) -> "BakedField":
         """Evaluate ``field`` at the vertices of a lattice over its modelled bounds.
 
         The lattice starts at the bounds' minimum corner and has ceil(extent / voxel_size) cells
@@ -283,6 +295,73 @@ class BakedField:
         rendering = (field.occupancy_delta, field.marching.step / field.frame.scale, scores)
         return cls((density, class_values, lo, voxel_size), field.aabb, field.classes, rendering)
 
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the lattice as a zarr group (format 3), so another process can answer queries
+        with :meth:`load` without the field, the network or torch (docs/formats.md, "Baked field").
+
+        Layout: arrays ``density`` [nx+1, ny+1, nz+1] float32 and ``class_values`` [nx+1, ny+1,
+        nz+1, C] (uint8 codes, or float32 logits with ``scores``); group attributes ``format``
+        (:data:`BAKED_FORMAT`), ``format_version``, ``scenelabel_version``, ``corner``,
+        ``voxel_size``, ``aabb``, ``classes`` (``{"id": name}``, the channel order),
+        ``occupancy_delta``, ``step``, ``scores``. Written atomically (a failed write leaves
+        ``path`` as it was).
+
+        Args:
+            path: the ``.zarr`` folder to write.
+            overwrite: replace an existing zarr group at ``path``.
+        Returns:
+            The absolute path written.
+        """
+        import zarr
+
+        _, _, path = check_target(path, 3, (64, 64, 64), overwrite)
+        attrs = {
+            "format": BAKED_FORMAT,
+            "format_version": BAKED_FORMAT_VERSION,
+            "scenelabel_version": __version__,
+            "corner": self.corner.tolist(),
+            "voxel_size": self.voxel_size,
+            "aabb": self.aabb.tolist(),
+            "classes": {str(cid): name for cid, name in self.classes.items()},
+            "occupancy_delta": self.occupancy_delta,
+            "step": self.step,
+            "scores": self.scores,
+        }
+        with staged_group(path) as tmp:
+            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            group.attrs.update(attrs)
+            for name, values in (("density", self.density), ("class_values", self.class_values)):
+                chunks = (64, 64, 64) + values.shape[3:]
+                group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=chunks)[...] = values
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "BakedField":
+        """A BakedField written by :meth:`save`. Imports neither torch nor the field.
+
+        Raises:
+            InputError: ``path`` is not a saved BakedField, or one of another format version.
+        """
+        import zarr
+
+        path = Path(path).expanduser()
+        try:
+            group = zarr.open_group(str(path), mode="r")
+        except (FileNotFoundError, ValueError, zarr.errors.GroupNotFoundError) as err:
+            raise InputError(f"not a zarr group ({type(err).__name__})", path=path) from None
+        attrs = dict(group.attrs.asdict())
+        if attrs.get("format") != BAKED_FORMAT:
+            raise InputError(f"format is {attrs.get('format')!r}, expected {BAKED_FORMAT!r}", path=path, field="format")
+        if attrs.get("format_version") != BAKED_FORMAT_VERSION:
+            raise InputError(
+                f"format_version {attrs.get('format_version')!r} is not supported (this scenelabel reads "
+                f"{BAKED_FORMAT_VERSION}): bake the field again with this version",
+                path=path, field="format_version",
+            )
+        lattice = (group["density"][...], group["class_values"][...], attrs["corner"], attrs["voxel_size"])
+        classes = {int(cid): name for cid, name in attrs["classes"].items()}
+        return cls(lattice, np.asarray(attrs["aabb"]), classes, (attrs["occupancy_delta"], attrs["step"], attrs["scores"]))
+
     @property
     def nbytes(self) -> int:
         """Memory the lattice takes, bytes."""
@@ -324,9 +403,10 @@ class BakedField:
             directions: (N, 3) world directions; need not be unit length (no zero vector).
             near, far: optional (N,) or scalar limits, distances along the *unit* direction.
         Returns:
-            RayQuery (rgb is zeros: the lattice holds no colour); label = class id where the
-            opacity is ≥ 0.5, FREE where the ray crosses the bounds without that, UNKNOWN where
-            it never enters them.
+            RayQuery (rgb is zeros: the lattice holds no colour) under the ray contract
+            (:func:`~scenelabel.query.answers.ray_contract`): depth and class id where the opacity
+            is ≥ 0.5; depth ``inf`` and FREE where the ray crosses the bounds without that,
+            ``inf`` and UNKNOWN where it never enters them.
         """
         origins, directions, near, far = ray_query_inputs(origins, directions, near, far)
         t_enter, t_exit = ray_box_distances(origins, directions, *self.aabb)
@@ -339,5 +419,5 @@ class BakedField:
             (self.density, self.class_values, self.corner, self.voxel_size), (origins, directions, t_min, t_max),
             self.step, self.scores,
         )
-        label = labels_from_answers(self.class_ids[probs.argmax(-1)], opacity, t_max > t_min)
+        depth, label = ray_contract(depth, opacity, self.class_ids[probs.argmax(-1)], t_max > t_min)
         return RayQuery(np.zeros((len(origins), 3)), depth, opacity, probs, self.class_ids.copy(), label)

@@ -34,6 +34,7 @@ from scenelabel.query.answers import (
     checked_array,
     inside_bounds,
     labels_from_answers,
+    ray_contract,
     ray_query_inputs,
     softmax64,
 )
@@ -205,7 +206,7 @@ class SemanticField:
         self, origins_n: np.ndarray, directions: np.ndarray, near_n=None, far_n=None, with_rgb: bool = True
     ) -> dict[str, np.ndarray]:
         """Render rays given in the normalised frame, chunk by chunk; a ray stops once it is opaque
-        (transmittance below :data:`scenelabel.render.marcher.EARLY_STOP_TRANS`). A field trained with
+        (transmittance below :data:`scenelabel.render.constants.EARLY_STOP_TRANS`). A field trained with
         hierarchical sampling renders as in training (coarse, then fine samples; no early stop)."""
         sampling = self.config.sampling
         chunk = sampling.chunk_rays
@@ -241,7 +242,7 @@ class SemanticField:
         """What each ray hits, how far, and with which class.
 
         Rays are composited as in training (eq. 2 / eq. 7, no jitter), except that a ray stops
-        once its transmittance is below :data:`scenelabel.render.marcher.EARLY_STOP_TRANS` (1e-4): the
+        once its transmittance is below :data:`scenelabel.render.constants.EARLY_STOP_TRANS` (1e-4): the
         weight it leaves out is at most that. A field trained with hierarchical sampling
         (``sampling.strategy``) renders as in training: coarse, then fine samples, no early stop.
 
@@ -251,21 +252,19 @@ class SemanticField:
             near, far: optional (N,) or scalar limits, as distances along the *unit* direction.
             with_rgb: also composite colour (False is faster; rgb is then zeros).
         Returns:
-            RayQuery with depth in world units along the unit direction.
+            RayQuery under the ray contract (:func:`~scenelabel.query.answers.ray_contract`): a hit
+            (opacity ≥ 0.5) has depth Σ w_i t_i / Σ w_i in world units along the unit direction
+            and its class; no hit has depth ``inf`` and label FREE (UNKNOWN if the ray never
+            enters the bounds).
         """
         origins, directions, near, far = ray_query_inputs(origins, directions, near, far)
         scale = self.frame.scale
         near_n, far_n = (None if v is None else v * scale for v in (near, far))
         out = self._render_n(self.frame.to_normalised(origins), directions, near_n, far_n, with_rgb)
         rgb = out["rgb"] if with_rgb else np.zeros((len(origins), 3))
-        return RayQuery(
-            rgb=rgb,
-            depth=out["depth"] / scale,
-            opacity=out["opacity"],
-            probs=out["probs"],
-            class_ids=self.class_ids,
-            label=self._labels_from_rays(out["probs"], out["opacity"], out["entered"]),
-        )
+        hit_label = self.class_map.ids_from_channels(out["probs"].argmax(-1))
+        depth, label = ray_contract(out["depth"] / scale, out["opacity"], hit_label, out["entered"])
+        return RayQuery(rgb, depth, out["opacity"], out["probs"], self.class_ids, label)
 
     def render(
         self,

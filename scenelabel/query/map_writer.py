@@ -3,7 +3,8 @@ this process or on a Dask cluster.
 
 :func:`write_occupancy_map` writes the store :meth:`OccupancyMap.to_zarr` writes for
 ``SemanticField.occupancy_map(...)`` (same arrays, attributes, pyramid and NGFF metadata, same
-atomic tmp-then-rename), without ever holding the map's arrays whole::
+atomic tmp-then-rename), without ever holding the map's arrays whole (but for the ESDF of pass 4,
+which needs a level whole: ``esdf=False`` skips it)::
 
     from scenelabel.query.map_writer import write_occupancy_map
     write_occupancy_map("room/scenelabel", "room.zarr", 0.02)                 # this process
@@ -24,7 +25,11 @@ Passes, each over zarr chunks (a task writes whole chunks, so concurrent writers
    (transmittance 0.5; plus the field's surfaces outside the map's box when ``bounds`` cut the
    field), then per chunk make the surface voxels occupied and apply the visibility rule;
 3. write each pyramid level's chunks from level 0 (a coarse voxel pools its ``2^L``³ level-0
-   children, exactly as ``OccupancyMap.downsample(2 ** L)``).
+   children, exactly as ``OccupancyMap.downsample(2 ** L)``);
+4. per level, in this process: read ``label`` back chunk by chunk into a bool obstacle mask of the
+   whole level (1 byte per voxel), run the distance transform (it needs the whole grid) and write
+   ``esdf`` chunk by chunk (:func:`scenelabel.maps.zarr_io.write_esdf`, the values
+   ``OccupancyMap.esdf()`` gives).
 
 With a ``distributed.Client`` each chunk is a task; tasks get the checkpoint's path and every
 worker process loads the field once (cached by path and modification time), so the checkpoint
@@ -62,7 +67,7 @@ from scenelabel.maps import (
 )
 from scenelabel.maps.pyramid import check_levels
 from scenelabel.maps.visibility import CameraSurfaces, camera_surfaces, observed_centres, surface_mask
-from scenelabel.maps.zarr_io import check_target, level_group, root_attributes, staged_group
+from scenelabel.maps.zarr_io import check_target, level_group, root_attributes, staged_group, write_esdf
 from scenelabel.query import mapping
 from scenelabel.query.field import SemanticField
 
@@ -296,22 +301,28 @@ def write_occupancy_map(
     overwrite: bool = True,
     client: Any = None,
     progress: bool = False,
+    esdf: bool = True,
 ) -> Path:
     """Evaluate a field's occupancy map chunk by chunk straight into a zarr store.
 
     The store equals ``field.occupancy_map(voxel_size, bounds, visibility=visibility)
-    .to_zarr(path, zarr_format, chunks, levels=levels)``: the same arrays, attributes, pyramid
+    .to_zarr(path, zarr_format, chunks, levels=levels, esdf=esdf)``: the same arrays, attributes, pyramid
     levels and OME-NGFF metadata (docs/formats.md), written the same way (into a hidden sibling
     ``.NAME.tmp-PID``, root group attributes last, renamed into place; on any error, a task's
     included, the target is left as it was).
 
-    Memory: the map's arrays are never held whole. A task holds one zarr chunk of each array
-    (pass 1 evaluates it :data:`EVAL_BLOCK`³ voxels at a time; a pyramid chunk reads its level-0
-    children in blocks of at most ``max(chunks, 2^L)`` per axis). The one global array is the
-    grid of opacity codes, ``[nx, ny, nz]`` uint8 (1 byte per voxel), read back from
-    ``occupancy`` chunk by chunk in this process to cast the training cameras' depth maps through
-    it (at most 80 pixels wide, two float64 maps per camera, and the voxels their surfaces lie
-    in), which every visibility task then gets.
+    Memory: the map's arrays are never held whole (the ESDF's pass aside, below). A task holds one
+    zarr chunk of each array (pass 1 evaluates it :data:`EVAL_BLOCK`³ voxels at a time; a pyramid
+    chunk reads its level-0 children in blocks of at most ``max(chunks, 2^L)`` per axis). The one
+    global array of passes 1 to 3 is the grid of opacity codes, ``[nx, ny, nz]`` uint8 (1 byte
+    per voxel), read back from ``occupancy`` chunk by chunk in this process to cast the training
+    cameras' depth maps through it (at most 80 pixels wide, two float64 maps per camera, and the
+    voxels their surfaces lie in), which every visibility task then gets. The ``esdf`` arrays
+    (pass 4) cost more, in this
+    process: the Euclidean distance transform needs a level whole, so ``label`` is read back into
+    a bool obstacle mask (1 byte per voxel) and scipy's feature transform (int32, 12 bytes per
+    voxel) plus the float32 result make about 19 bytes per voxel of level 0 at the peak (19 GB
+    for 10^9 voxels); ``esdf=False`` leaves them out.
 
     Args:
         source: a build folder or its checkpoint.pt (tasks load the field from it, once per
@@ -329,6 +340,7 @@ def write_occupancy_map(
         client: a ``distributed.Client``: each chunk becomes a task on its cluster; None: a loop
             in this process.
         progress: tqdm progress bars, one per pass.
+        esdf: write the ``esdf`` arrays (as ``to_zarr(esdf=True)``, the default) and attributes.
     Returns:
         the absolute path written.
     Raises:
@@ -361,7 +373,7 @@ def write_occupancy_map(
         level_shapes = [tuple(-(-n // PYRAMID_FACTOR**level) for n in shape) for level in range(n_levels)]
         groups = [root] + [level_group(root, level) for level in range(1, n_levels)]
         for group, level_shape in zip(groups, level_shapes):
-            draft.create_arrays(group, zarr_format, chunks, level_shape)
+            draft.create_arrays(group, zarr_format, chunks, level_shape, esdf=esdf)
         level0 = list(iter_chunks(shape, array_chunks(chunks, shape)))
 
         # pass 1: the field, chunk by chunk
@@ -397,7 +409,12 @@ def write_occupancy_map(
             for c in iter_chunks(level_shapes[level], array_chunks(chunks, level_shapes[level]))
         ]
         _run(client, _pool_chunk, calls, "map: pyramid", progress)
+
+        # pass 4: each level's ESDF from its labels, here (the distance transform needs the whole level)
+        if esdf:
+            for group, level_map in zip(groups, pyramid):
+                write_esdf(group, level_map.voxel_size)
         for level in range(1, n_levels):
-            groups[level].attrs.update(pyramid[level].group_attributes(level, n_levels))
-        root.attrs.update(root_attributes(pyramid, zarr_format))  # last: marks the map complete
+            groups[level].attrs.update(pyramid[level].group_attributes(level, n_levels, esdf=esdf))
+        root.attrs.update(root_attributes(pyramid, zarr_format, esdf=esdf))  # last: marks the map complete
     return path

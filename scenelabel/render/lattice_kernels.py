@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 from numba import njit
 
-from scenelabel.render.volume import OPACITY_EPS
+from scenelabel.render.constants import OPACITY_EPS
 
 MIN_ROWS_PER_THREAD = 4096
 """Kernels are split over threads (one per core) in chunks of at least this many points or rays."""

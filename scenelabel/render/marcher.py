@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import torch
 
+from scenelabel.render.constants import EARLY_STOP_TRANS
+
 from scenelabel.render.sampling import (
     importance_sample,
     march,
@@ -38,8 +40,6 @@ __all__ = [
     "render_rays_hierarchical",
 ]
 
-EARLY_STOP_TRANS = 1e-4
-"""Queries stop marching a ray once its transmittance is below this (:func:`render_rays_early_stop`)."""
 
 EARLY_STOP_SEGMENT = 16
 """Samples per ray evaluated between two transmittance checks."""

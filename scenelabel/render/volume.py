@@ -29,6 +29,8 @@ import math
 
 import torch
 
+from scenelabel.render.constants import OPACITY_EPS
+
 __all__ = [
     "SIGMA_MAX",
     "DELTA_MAX",
@@ -58,8 +60,6 @@ DELTA_MAX = 1e30
 TAU_MAX = 1e4
 """τ above this is already fully opaque (exp(-1e4) == 0 in fp64); the clamp keeps sums finite."""
 
-OPACITY_EPS = 1e-10
-"""Below this opacity a ray counts as empty: class probs are uniform and depth is ``far``."""
 
 
 def optical_depth(sigmas: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:

@@ -6,7 +6,9 @@ Orchestration on top of io, train, semantic_field and maps. Writes into the outp
   cameras (what the maps' unknown rule needs)
 - ``config.json``: the resolved config (human-readable copy)
 - ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
-- ``renders/<view>.png``: ground truth | rgb | labels | smoothed labels, for held-out views
+- ``renders/<view>.png``: captioned panels (ground truth, rgb, labels, smoothed labels, true labels,
+  depth, label errors), a class legend and the view's metrics, for held-out views
+  (:mod:`scenelabel.viz.pictures`)
 - ``map.zarr``: the semantic occupancy map
 """
 
@@ -23,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
@@ -37,16 +38,17 @@ from scenelabel.geometry.cameras import Cameras, cameras_to_dict
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
 from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
+from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
-from scenelabel.query.postprocess import colorize_labels, side_by_side, smooth_class_probs
+from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.render.sampling import DensityGrid, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
 from scenelabel.train.trainer import Trainer, rays_for_views
+from scenelabel.viz.pictures import evaluation_panels, view_title, write_panels
 
 __all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
 
-MAP_NAME = "map.zarr"
 VOXEL_FOOTPRINT_PIXELS = 2.0
 """The default map voxel spans this many training pixels at the typical viewing distance."""
 
@@ -132,14 +134,11 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
             view["depth_error"] = err
             depth_errs.append(err)
         per_view.append(view)
-        if renders_dir is not None:
-            panels = [gt, out.rgb]
-            panels = [(np.clip(p, 0, 1) * 255 + 0.5).astype(np.uint8) for p in panels]
-            if field.class_map.names != (UNLABELLED_NAME,):  # a build without labels shows colour only
-                panels += [colorize_labels(out.label, colors), colorize_labels(smoothed_label, colors)]
-            if label is not None:
-                panels.append(colorize_labels(label, colors, ignore_index=ignore))
-            Image.fromarray(side_by_side(panels)).save(renders_dir / f"{scene.names[i]}.png")
+        if renders_dir is not None:  # captioned panels, a legend of the classes shown, the view's metrics
+            labelled = field.class_map.names != (UNLABELLED_NAME,)  # a build without labels: colour and depth
+            panels = evaluation_panels(gt, out, smoothed_label, label, depth, ignore, labelled)
+            write_panels(renders_dir / f"{scene.names[i]}.png", panels, {**scene.classes, **field.classes}, colors,
+                         view_title(scene.names[i], view), ignore)
     metrics: dict = {"n_test_views": len(test)}
     if per_view:
         metrics["psnr"] = float(np.mean([v["psnr"] for v in per_view]))

@@ -1,0 +1,119 @@
+"""Picture the web viewer for the docs: build (or reuse) the toy scene, serve ``scenelabel view``,
+open it in a headless Chromium, answer a point query and render the view, and save the page.
+
+    .venv/bin/python tools/screenshots.py                       # docs/images/viewer.png
+    .venv/bin/python tools/screenshots.py --build toy_scene/scenelabel --out /tmp/viewer.png
+
+Also prints what it measured: the page's ready time after the server started, a point query's
+latency through the API, and a 320 x 240 render from the browser's camera with each method.
+Needs a chromium (Debian: ``apt-get install chromium``; tools/setup.sh installs it where it can).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_WORK = Path("/tmp/scenelabel-screenshots")
+# viser warns in the page that WebGL runs in software (SwiftShader, as headless Chromium does): close it
+DISMISS_SOFTWARE_WEBGL = """(() => {
+  for (const note of document.querySelectorAll('.mantine-Notification-root')) {
+    if (note.textContent.includes('Software WebGL')) { const b = note.querySelector('button'); if (b) b.click(); }
+  }
+  return true;
+})()"""
+
+
+def toy_build(work: Path, steps: int) -> Path:
+    """The toy scene built with the quick preset under ``work`` (reused when already there)."""
+    from scenelabel import build, preset, write_toy_scene
+
+    out = work / "toy" / "scenelabel"
+    if (out / "checkpoint.pt").is_file():
+        return out
+    scene = write_toy_scene(work / "toy")
+    print(f"building the toy scene ({steps} steps) into {out} ...", flush=True)
+    build(scene, out, preset("quick", {"train": {"steps": steps}}), progress=False)
+    return out
+
+
+def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
+    """Fraction of pixels within ``tolerance`` (sum of channel differences) of ``color``."""
+    return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--build", type=Path, help="a build folder to show (default: the toy scene, built once)")
+    parser.add_argument("--work", type=Path, default=DEFAULT_WORK, help=f"where the toy build goes ({DEFAULT_WORK})")
+    parser.add_argument("--steps", type=int, default=500, help="training steps of the toy build (default: 500)")
+    parser.add_argument("--out", type=Path, default=REPO / "docs" / "images" / "viewer.png")
+    parser.add_argument("--size", default="1280x1000", help="browser viewport WxH (default: 1280x1000)")
+    args = parser.parse_args(argv)
+
+    from scenelabel.viz.browser import HeadlessBrowser, find_chromium
+    from scenelabel.viz.viewer import ViewerApp
+    from scenelabel.viz.viewer_gui import camera_pose
+
+    if find_chromium() is None:
+        print("no chromium found: install Debian's chromium (or set SCENELABEL_CHROMIUM)", file=sys.stderr)
+        return 1
+    build_dir = args.build or toy_build(args.work, args.steps)
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    app = ViewerApp.open(build_dir)
+    start = time.perf_counter()
+    url = app.start(port=0)
+    print(f"viewer of {build_dir} at {url}")
+    classes = [c for c in app.palette if app.voxel_counts.get(c, 0) > 0]
+    try:
+        with HeadlessBrowser(width, height) as browser:
+            browser.open(url)
+            client = app.wait_for_client(60)
+            browser.wait_for(lambda im: all(colour_fraction(im, app.palette[c]) > 0.001 for c in classes), timeout=120)
+            ready = time.perf_counter() - start
+            browser.evaluate(DISMISS_SOFTWARE_WEBGL)
+
+            # a click on the first box from above: what the Query panel then says
+            box = app.map.world_from_index(np.argwhere(app.map.label == classes[-1])).mean(0)
+            hit = app.click_point(box + [0.0, 0.0, 10.0], [0.0, 0.0, -1.0])
+            app.show_query(hit if hit is not None else box)
+            latencies = []
+            for _ in range(20):
+                t = time.perf_counter()
+                app.query(hit if hit is not None else box)
+                latencies.append(time.perf_counter() - t)
+            renders = {}
+            methods = ("baked", "map", "field") if app.field is not None else ("map",)
+            for method in methods:  # the field last: its rgb stays in the panel
+                renders[method] = app.show_render(client, method).seconds
+            app.gui["render_method"].value = methods[-1]
+            view = camera_pose(client.camera)
+            time.sleep(1.0)
+            browser.evaluate(DISMISS_SOFTWARE_WEBGL)
+            image = browser.wait_for(lambda im: all(colour_fraction(im, app.palette[c]) > 0.001 for c in classes), 60)
+        # the same view again with no browser drawing (SwiftShader WebGL takes CPU from the field)
+        alone = {method: app.render_view(*view, method=method).seconds for method in methods}
+    finally:
+        app.stop()
+    from PIL import Image
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(image).save(args.out)
+    print(f"wrote {args.out} ({width} x {height})")
+    print(f"page ready {ready:.2f} s after the server started (chromium, SwiftShader WebGL)")
+    print(f"point query through ViewerApp.query: median {1000 * statistics.median(latencies):.2f} ms "
+          f"({'field' if app.field is not None else 'map'})")
+    print("320 x 240 render from the browser's camera: " + ", ".join(f"{m} {s:.2f} s" for m, s in renders.items())
+          + " (baked: the first includes baking); with the browser closed: "
+          + ", ".join(f"{m} {s:.2f} s" for m, s in alone.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
