@@ -224,7 +224,7 @@ def main() -> None:
         result = measure(Path(workdir), args.steps)
     out = Path(args.out)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
-    write_markdown(result, out, "python tools/bench_planner.py " + " ".join(sys.argv[1:]))
+    write_markdown(result, out, " ".join(["python tools/bench_planner.py", *sys.argv[1:]]))
     print(f"wrote {out}")
 
 
