@@ -12,6 +12,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 import trimesh
+from test_exports import CLASSES, COLORS, ORIGIN, VS  # the same hand-made maps' frame and classes
 
 from scenelabel import FREE, UNKNOWN, InputError, OccupancyMap
 from scenelabel.maps.exports import (
@@ -27,11 +28,6 @@ from scenelabel.maps.exports import (
     write_class_meshes,
     write_glb,
 )
-
-VS = 0.1
-ORIGIN = (1.0, 2.0, -0.5)  # world centre of voxel [0, 0, 0]
-CLASSES = {1: "floor", 3: "box", 5: "chair"}
-COLORS = {1: (190, 170, 130), 3: (220, 40, 40)}  # chair has no colour: fallback palette
 
 
 def make_map(label, occupancy=None, threshold=0.5, **kwargs):

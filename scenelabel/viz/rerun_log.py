@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -42,8 +41,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid
 from scenelabel.maps.codes import FREE
+from scenelabel.maps.exports.meshes import class_meshes
 from scenelabel.maps.exports.palette import class_palette
+from scenelabel.maps.exports.ply import occupied_voxels
 from scenelabel.maps.occupancy_map import OccupancyMap
 from scenelabel.query.build_outputs import own_map
 from scenelabel.query.postprocess import IGNORE_COLOR, NO_CLASS_COLOR
@@ -118,9 +120,8 @@ def z_depth(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np
     float32, for a pinhole (pixel centres at +0.5, docs/conventions.md)."""
     depth = np.asarray(depth, np.float64)
     h, w = depth.shape
-    x = ((np.arange(w) + 0.5 - cx) / fx)[None, :]
-    y = ((np.arange(h) + 0.5 - cy) / fy)[:, None]
-    return (depth / np.sqrt(x * x + y * y + 1.0)).astype(np.float32)
+    cos_axis = camera_directions_from_pixels(pixel_grid(w, h), fx, fy, cx, cy)[:, 2]  # unit rays' z: [H * W]
+    return (depth * cos_axis.reshape(h, w)).astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------
@@ -238,39 +239,16 @@ def _annotation(log: _Logger, classes: Mapping[int, str], class_colors: Mapping[
 
 
 def _log_map(log: _Logger, occ_map: OccupancyMap) -> int:
-    has_class = occ_map.label >= 0
-    ijk = np.argwhere(has_class)
+    ijk, label = occupied_voxels(occ_map)
     points = occ_map.world_from_index(ijk).astype(np.float32)
-    class_ids = rerun_class_ids(occ_map.label[has_class])
+    class_ids = rerun_class_ids(label)
     log.log("world/map", log.rr.Points3D(points, class_ids=class_ids, radii=np.float32(occ_map.voxel_size / 2)))
     return len(points)
 
 
-def _class_meshes(occ_map: OccupancyMap) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
-    """class id -> (vertices, faces, normals or None) from the exports' public mesh function."""
-    from scenelabel.maps import exports
-
-    make = getattr(exports, "class_meshes", None)
-    if make is None:
-        warnings.warn("scenelabel.maps.exports has no class_meshes: the recording has no meshes", stacklevel=3)
-        return {}
-    try:
-        meshes = make(occ_map)
-    except ImportError as err:
-        warnings.warn(f"no meshes in the recording: {err}", stacklevel=3)
-        return {}
-    out = {}
-    for cid, mesh in meshes.items():
-        vertices = np.asarray(mesh.vertices if hasattr(mesh, "vertices") else mesh[0])  # a ClassMesh, or a tuple
-        faces = np.asarray(mesh.faces if hasattr(mesh, "faces") else mesh[1])
-        normals = getattr(mesh, "normals", None)
-        out[int(cid)] = (vertices, faces, None if normals is None else np.asarray(normals))
-    return out
-
-
 def _log_meshes(log: _Logger, occ_map: OccupancyMap, palette: Mapping[int, tuple[int, int, int]]) -> int:
     n = 0
-    for cid, (vertices, faces, normals) in _class_meshes(occ_map).items():
+    for cid, (vertices, faces, normals) in class_meshes(occ_map).items():
         if len(faces) == 0:
             continue
         name = occ_map.classes.get(cid, f"class_{cid}")
@@ -280,7 +258,7 @@ def _log_meshes(log: _Logger, occ_map: OccupancyMap, palette: Mapping[int, tuple
             log.rr.Mesh3D(
                 vertex_positions=vertices.astype(np.float32),
                 triangle_indices=faces.astype(np.uint32),
-                vertex_normals=None if normals is None else normals.astype(np.float32),
+                vertex_normals=normals.astype(np.float32),
                 albedo_factor=(*color, 255),
                 class_ids=np.full(len(vertices), cid, np.uint16),
             ),

@@ -98,20 +98,14 @@ def progress(client: Any, title: str, body: str) -> Iterator[None]:
 
 
 def class_mesh_arrays(occ_map: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per class (vertices [V, 3] float32, faces [F, 3] uint32) of the map's class meshes, from
-    whichever mesh function :mod:`scenelabel.maps.exports` offers (``class_meshes``, else the
-    per-class ``class_surface``); empty when it offers none."""
-    from scenelabel.maps import exports
+    """Per class (vertices [V, 3] float32, faces [F, 3] uint32) of the map's class meshes
+    (:func:`scenelabel.maps.exports.class_meshes`)."""
+    from scenelabel.maps.exports import class_meshes
 
-    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    if hasattr(exports, "class_meshes"):
-        for cid, mesh in exports.class_meshes(occ_map).items():
-            out[int(cid)] = (np.asarray(mesh[0], np.float32), np.asarray(mesh[1], np.uint32))
-    elif hasattr(exports, "class_surface"):
-        for cid in np.unique(occ_map.label[occ_map.label >= 0]).tolist():
-            verts, faces, _ = exports.class_surface(occ_map.label == cid, occ_map.origin, occ_map.voxel_size)
-            out[int(cid)] = (np.asarray(verts, np.float32), np.asarray(faces, np.uint32))
-    return out
+    return {
+        int(cid): (mesh.vertices.astype(np.float32), mesh.faces.astype(np.uint32))
+        for cid, mesh in class_meshes(occ_map).items()
+    }
 
 
 def _swatch(color: tuple[int, int, int]) -> str:
