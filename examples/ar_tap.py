@@ -13,7 +13,8 @@ row-major)::
 
 The ray goes through the **centre** of pixel (u, v): (u + 0.5, v + 0.5) in image coordinates
 (docs/conventions.md), direction ``c2w[:3, :3] @ ((u + 0.5 - cx) / fx, (v + 0.5 - cy) / fy, 1)``
-(distorted training cameras are undistorted with OpenCV first). ``query_rays`` returns the class
+(distorted training cameras are undistorted with OpenCV first; a fisheye camera's ray follows its
+lens model, docs/conventions.md "Camera models"). ``query_rays`` returns the class
 hit, the depth (distance along the unit ray, world units) and the opacity; the hit point is
 ``origin + depth * direction``.
 """
@@ -29,9 +30,14 @@ import numpy as np
 from scenelabel import FREE, UNKNOWN, ScenelabelError, SemanticField, load_scene
 
 
-def pixel_ray(c2w, fx, fy, cx, cy, u, v, distortion=None):
+def pixel_ray(c2w, fx, fy, cx, cy, u, v, distortion=None, model="pinhole"):
     """World origin [3] and unit direction [3] of the ray through the centre of pixel (u, v)."""
     uv = np.array([u + 0.5, v + 0.5])
+    if model == "fisheye":  # OpenCV's equidistant fisheye: its rays may pass 90° off the axis
+        from scenelabel.geometry.rays import camera_directions_from_pixels
+
+        direction = c2w[:3, :3] @ camera_directions_from_pixels(uv[None], fx, fy, cx, cy, distortion, model)[0]
+        return c2w[:3, 3].copy(), direction / np.linalg.norm(direction)
     if distortion is not None and np.any(distortion != 0):
         import cv2
 
@@ -44,7 +50,7 @@ def pixel_ray(c2w, fx, fy, cx, cy, u, v, distortion=None):
 
 
 def camera(args):
-    """(c2w [4, 4], fx, fy, cx, cy, width, height, distortion [4] or None) of the chosen camera."""
+    """(c2w [4, 4], fx, fy, cx, cy, width, height, distortion [4] or None, model) of the chosen camera."""
     if args.c2w:
         values = [float(x) for x in args.c2w.split(",")]
         if len(values) != 16:
@@ -52,14 +58,14 @@ def camera(args):
         c2w = np.array(values).reshape(4, 4)
         if args.focal is None or args.cx is None or args.cy is None:
             raise ValueError("--c2w needs --focal, --cx and --cy")
-        return c2w, args.focal, args.focal, args.cx, args.cy, None, None, None
+        return c2w, args.focal, args.focal, args.cx, args.cy, None, None, None, "pinhole"
     scene_dir = Path(args.scene) if args.scene else Path(args.build).resolve().parent
     cams = load_scene(scene_dir).cameras  # scenelabel's Cameras: c2w in OpenCV axes
     if not 0 <= args.view < len(cams):
         raise ValueError(f"--view must be in [0, {len(cams) - 1}]")
     i = args.view
     return (cams.c2w[i], cams.fx[i], cams.fy[i], cams.cx[i], cams.cy[i], int(cams.width[i]), int(cams.height[i]),
-            cams.distortion[i])
+            cams.distortion[i], str(cams.model[i]))
 
 
 def main(argv=None):
@@ -77,10 +83,10 @@ def main(argv=None):
 
     try:
         field = SemanticField.load(args.build)
-        c2w, fx, fy, cx, cy, width, height, distortion = camera(args)
+        c2w, fx, fy, cx, cy, width, height, distortion, model = camera(args)
         if width is not None and not (0 <= args.u < width and 0 <= args.v < height):
             raise ValueError(f"pixel ({args.u}, {args.v}) is outside the {width}x{height} image")
-        origin, direction = pixel_ray(c2w, fx, fy, cx, cy, args.u, args.v, distortion)
+        origin, direction = pixel_ray(c2w, fx, fy, cx, cy, args.u, args.v, distortion, model)
         hit = field.query_rays(origin[None], direction[None])
     except (ScenelabelError, ValueError) as err:  # InputError is a ValueError too
         print(f"ar_tap: error: {err}", file=sys.stderr)

@@ -62,7 +62,8 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
         "--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds (fast: 150 by default)"
     )
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
-    p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all)")
+    p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all); "
+                   "not used when the input has its own splits (transforms_train / _val / _test.json)")
     p.add_argument("--voxel-size", type=float, help="occupancy-map voxel size in world units")
     p.add_argument("--downscale", type=int, metavar="N", help="shrink images N times (uses LLFF-style images_N/ when present)")
     p.add_argument(
@@ -143,19 +144,32 @@ def _build_many(args: argparse.Namespace) -> int:
     return EXIT_SCENES_FAILED if failed else 0
 
 
+def _scene_folder(scene: str) -> Path:
+    """The folder of a ``build`` argument: ``clip/`` beside a video ``clip.mp4``, else the argument."""
+    from scenelabel.data.video import is_video, video_scene_dir
+
+    return video_scene_dir(scene) if is_video(scene) else Path(scene)
+
+
 def _cmd_build(args: argparse.Namespace) -> int | None:
     from scenelabel.train.pipeline import build, resume_config
 
     if len(args.scene) > 1 or args.workers is not None or args.scheduler:
         return _build_many(args)
     args.scene = args.scene[0]
-    if args.segmenter and not (Path(args.scene) / "labels").is_dir():
-        _segment(args.scene, args.segmenter, False, args.device, args.quiet)
+    folder = _scene_folder(args.scene)
     if args.resume:
-        out = Path(args.out) if args.out else Path(args.scene) / "scenelabel"
+        out = Path(args.out) if args.out else folder / "scenelabel"
         config = resume_config(out, args.steps, args.time_budget)
     else:
         config = preset(args.preset, _overrides(args))
+    if args.segmenter and not (folder / "labels").is_dir():
+        if folder != Path(args.scene):  # a video: its frames first, to segment them
+            from scenelabel.data.video import prepare_video_scene
+
+            d = config.data
+            prepare_video_scene(args.scene, d.video_frames_per_second, d.video_max_frames, progress=not args.quiet)
+        _segment(str(folder), args.segmenter, False, args.device, args.quiet)
     result = build(args.scene, args.out, config, progress=not args.quiet, device=args.device, resume=args.resume)
     _print_metrics(result.metrics, result.out_dir)
 
@@ -377,7 +391,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "scene",
         nargs="+",
-        help="scene folder(s) (images/, labels/, classes.json, transforms.json or poses_bounds.npy)",
+        help="scene folder(s) (images/, labels/, classes.json, transforms.json or poses_bounds.npy), or video "
+        "file(s) (.mp4 .mov .avi .mkv .m4v: sharp frames into clip/images/ beside clip.mp4, poses by structure from "
+        "motion; config data.video_frames_per_second, data.video_max_frames)",
     )
     _add_build_options(p)
     cluster = p.add_mutually_exclusive_group()

@@ -23,6 +23,7 @@ __all__ = [
     "preset",
     "config_from_dict",
     "config_to_dict",
+    "render_background",
 ]
 
 
@@ -37,12 +38,22 @@ class DataConfig:
 
     downscale: int = 1  # shrink images by this integer factor (LLFF-style images_N/ folders are used when present)
     scale: float | None = None  # multiply the input's world units by this (e.g. metres per COLMAP unit); None: 1
+    # a video input (scenelabel.data.video): frames kept per second of video (the sharpest of each run of
+    # consecutive frames, blurred ones dropped), and at most this many frames in all
+    video_frames_per_second: float = 3.0
+    video_max_frames: int = 150
 
     def __post_init__(self) -> None:
         if isinstance(self.downscale, bool) or not isinstance(self.downscale, int) or self.downscale < 1:
             raise ConfigError(f"data.downscale must be an integer >= 1, got {self.downscale!r}")
         if self.scale is not None and not (isinstance(self.scale, (int, float)) and 0 < self.scale < float("inf")):
             raise ConfigError(f"data.scale must be a positive finite number, got {self.scale!r}")
+        fps = self.video_frames_per_second
+        if isinstance(fps, bool) or not (isinstance(fps, (int, float)) and 0 < fps < float("inf")):
+            raise ConfigError(f"data.video_frames_per_second must be a positive finite number, got {fps!r}")
+        n = self.video_max_frames
+        if isinstance(n, bool) or not isinstance(n, int) or n < 2:
+            raise ConfigError(f"data.video_max_frames must be an integer >= 2, got {n!r}")
 
 
 @dataclass
@@ -117,6 +128,15 @@ RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""
 
 
+def render_background(background: tuple[float, float, float] | str | None) -> tuple[float, float, float] | None:
+    """The colour renders composite on for a ``train.background``: that colour, white for
+    RANDOM_BACKGROUND, None (black) for None. Held-out evaluation composites transparent ground
+    truth (``Scene.image_alphas``) on the same colour."""
+    if background == RANDOM_BACKGROUND:
+        return (1.0, 1.0, 1.0)
+    return None if background is None else tuple(float(c) for c in background)  # type: ignore[return-value]
+
+
 @dataclass
 class TrainConfig:
     """The optimisation loop."""
@@ -135,6 +155,13 @@ class TrainConfig:
     # weight of the solid-interior term (losses.solid_interior_loss): density pushed up just past
     # where each ray becomes opaque, so that points inside walls and furniture read occupied (0: off)
     solid_weight: float = 0.0
+    # weight of the depth terms when views carry sensor depth (Scene.sensor_depths: RGB-D, phone
+    # LiDAR): Huber on the relative error of the expected termination plus the weight in front of
+    # the measured surface (losses.depth_loss, losses.free_space_loss); without sensor depth: no effect
+    depth_weight: float = 0.1
+    # with sensor depth (and depth_weight > 0) the solid-interior term is on at least at this weight:
+    # the measured surfaces say where the interior behind them begins (docs/captures.md)
+    depth_solid_weight: float = 0.01
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -144,9 +171,13 @@ class TrainConfig:
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
     time_budget: float | None = None  # seconds; training stops early when spent
     seed: int = 0
-    holdout: int = 8  # every holdout-th view is held out for evaluation; 0 = train on all
+    # every holdout-th view is held out for evaluation; 0 = train on all. Not used when the input
+    # has its own splits (Scene.splits, e.g. transforms_train / _val / _test.json): train on its
+    # train split, evaluate on its test split (its val split when the test split is empty)
+    holdout: int = 8
     # colour behind the scene (RGB in [0, 1]); None: black; "random": a new random colour per ray and
-    # step in training, so that a ray left partly transparent never matches its pixel (renders: white)
+    # step in training, so that a ray left partly transparent never matches its pixel (renders: white).
+    # Images with alpha (RGBA) are composited on it: target = rgb * alpha + background * (1 - alpha)
     background: tuple[float, float, float] | str | None = (1.0, 1.0, 1.0)
     checkpoint_every: int = 500  # steps between checkpoints
     log_every: int = 25  # steps between progress-bar updates
@@ -165,7 +196,7 @@ class TrainConfig:
         start = self.distortion_start
         if isinstance(start, bool) or not (isinstance(start, (int, float)) and 0 <= start <= 1):
             raise ConfigError(f"train.distortion_start must be a fraction in [0, 1], got {start!r}")
-        for name in ("distortion_weight", "tv_weight", "solid_weight"):
+        for name in ("distortion_weight", "tv_weight", "solid_weight", "depth_weight", "depth_solid_weight"):
             w = getattr(self, name)
             if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
                 raise ConfigError(f"train.{name} must be a finite number >= 0, got {w!r}")
@@ -201,6 +232,9 @@ PRESETS: dict[str, dict] = {
     # training, whichever comes first, so that a default build's time is known before it starts
     # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m)
     "fast": {"train": {"time_budget": 150.0}},
+    # captures with sensor depth (RGB-D, phone LiDAR; docs/captures.md): the depth terms make
+    # surfaces early, so 800 steps (at most 75 s of training) suffice (docs/depth.md)
+    "rgbd": {"train": {"steps": 800, "time_budget": 75.0}},
     "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
         "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},
         "sampling": {"n_steps": 128, "grid_resolution": 32, "grid_warmup": 16},

@@ -200,8 +200,131 @@ def _no_poses_one_photo(tmp):
     return build_args(tmp / "photos")
 
 
+def _video_unreadable(tmp):
+    clip = tmp / "clip.mp4"
+    clip.write_text("not a video\n" * 20)
+    return build_args(clip)
+
+
 def _segmenter_spec_unknown(tmp):
     return ["segment", str(toy(tmp)), "--model", "caffe:model.prototxt"]
+
+
+def _transforms_camera_model_unsupported(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "transforms.json", lambda d: d.update(camera_model="FISHEYE624"))
+    return build_args(scene)
+
+
+def _transforms_is_fisheye_with_pinhole_model(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "transforms.json", lambda d: d.update(camera_model="OPENCV", is_fisheye=True))
+    return build_args(scene)
+
+
+def _transforms_fisheye_with_tangential(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "transforms.json", lambda d: d.update(camera_model="OPENCV_FISHEYE", k1=0.01, p1=0.002))
+    return build_args(scene)
+
+
+def _colmap_camera_model_unsupported(tmp):
+    """A COLMAP model whose camera is THIN_PRISM_FISHEYE (neither a pinhole nor OpenCV's fisheye)."""
+    import pycolmap
+
+    scene = tmp / "colmap_scene"
+    (scene / "images").mkdir(parents=True)
+    reconstruction = pycolmap.Reconstruction()
+    params = [20.0, 20.0, 12.0, 9.0, 0.1] + [0.0] * 7
+    reconstruction.add_camera_with_trivial_rig(
+        pycolmap.Camera(camera_id=1, model="THIN_PRISM_FISHEYE", width=24, height=18, params=params)
+    )
+    for i in range(2):
+        name = f"{i}.png"
+        Image.fromarray(np.zeros((18, 24, 3), np.uint8)).save(scene / "images" / name)
+        w2c = np.eye(4)[:3]
+        w2c[0, 3] = 0.1 * i
+        image = pycolmap.Image(image_id=i + 1, name=name, camera_id=1, points2D=[])
+        reconstruction.add_image_with_trivial_frame(image, pycolmap.Rigid3d(w2c))
+    (scene / "sparse" / "0").mkdir(parents=True)
+    reconstruction.write_text(str(scene / "sparse" / "0"))
+    return build_args(scene)
+
+
+def _with_sensor_file(tmp, key: str, name: str, write=None, **top):
+    """The toy scene with ``frames[1][key] = name`` (``write(path)`` creates the file) and top-level keys."""
+    scene = toy(tmp)
+    if write is not None:
+        (scene / name).parent.mkdir(parents=True, exist_ok=True)
+        write(scene / name)
+
+    def edit(d):
+        d["frames"][1][key] = name
+        d.update(top)
+
+    edit_json(scene / "transforms.json", edit)
+    return build_args(scene)
+
+
+def _png16(shape):
+    return lambda path: Image.fromarray(np.full(shape, 2000, np.uint16)).save(path)
+
+
+def _sensor_depth_missing(tmp):
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.png")
+
+
+def _sensor_depth_unreadable(tmp):
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", lambda p: p.write_bytes(b"\x89PNG\r\n not a png"))
+
+
+def _sensor_depth_channels(tmp):
+    rgb = lambda p: Image.fromarray(np.zeros((18, 24, 3), np.uint8)).save(p)  # noqa: E731
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", rgb)
+
+
+def _sensor_depth_aspect(tmp):
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", _png16((10, 10)))
+
+
+def _sensor_depth_scale(tmp):
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", _png16((18, 24)), depth_unit_scale_factor=0)
+
+
+def _mask_missing(tmp):
+    return _with_sensor_file(tmp, "mask_path", "masks/001.png")
+
+
+def _mask_aspect(tmp):
+    return _with_sensor_file(tmp, "mask_path", "masks/001.png", lambda p: Image.fromarray(np.zeros((9, 9), np.uint8)).save(p))
+
+
+def _applied_transform_not_rigid(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "transforms.json", lambda d: d.update(applied_transform=[[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0]]))
+    return build_args(scene)
+
+
+def _split_files_without_train(tmp):
+    """The Blender layout with transforms_val.json only."""
+    scene = toy(tmp)
+    (scene / "transforms.json").rename(scene / "transforms_val.json")
+    return build_args(scene)
+
+
+def _split_train_without_images(tmp):
+    scene = toy(tmp)
+    (scene / "transforms.json").rename(scene / "transforms_train.json")
+    for p in (scene / "images").iterdir():
+        p.unlink()
+    return build_args(scene)
+
+
+def _split_files_one_view(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "transforms.json", lambda d: d.update(frames=d["frames"][:1]))
+    (scene / "transforms.json").rename(scene / "transforms_train.json")
+    return build_args(scene)
 
 
 CASES = [
@@ -223,10 +346,31 @@ CASES = [
     Case("output path not writable", _output_not_writable, ("a_file",)),
     Case("photos only, too few register in SfM", _photos_that_do_not_register, ("registered only 0 of 3", "matcher=")),
     Case("no poses and a single photo", _no_poses_one_photo, ("no poses found", "at least 2 photos")),
+    Case("video OpenCV cannot decode", _video_unreadable, ("clip.mp4", "cannot read the video")),
     Case("unknown segmenter spec", _segmenter_spec_unknown, ("caffe",)),
+    Case("transforms.json camera_model not supported", _transforms_camera_model_unsupported,
+         ("transforms.json", "FISHEYE624", "OPENCV_FISHEYE")),
+    Case("transforms.json is_fisheye with a pinhole camera_model", _transforms_is_fisheye_with_pinhole_model,
+         ("transforms.json", "is_fisheye", "pinhole model")),
+    Case("transforms.json fisheye with p1 / p2", _transforms_fisheye_with_tangential,
+         ("transforms.json", "p1", "k1, k2, k3, k4")),
+    Case("COLMAP camera model not supported", _colmap_camera_model_unsupported,
+         ("cameras.txt", "THIN_PRISM_FISHEYE", "OPENCV_FISHEYE", "image_undistorter")),
     Case("export input neither a build nor a map", _export_unknown_source, ("photos", "neither a build folder")),
     Case("export --voxel-size of a map", _export_voxel_size_of_a_map, ("map.zarr", "--voxel-size")),
     Case("export --format ply to a non-.ply file", _export_ply_suffix, ("points.txt", ".ply")),
     Case("export --format nav2 with an empty height band", _export_empty_band, ("no voxel layer",)),
     Case("export to OctoMap a map beyond its key range", _export_octomap_out_of_range, ("far.bt", "OctoMap's key range")),
+    Case("sensor depth file missing (depth_file_path)", _sensor_depth_missing, ("transforms.json", "depth/001.png", "not found")),
+    Case("sensor depth file unreadable", _sensor_depth_unreadable, ("001.png", "cannot read the depth image")),
+    Case("sensor depth with 3 channels", _sensor_depth_channels, ("001.png", "one channel, got 3")),
+    Case("sensor depth with another aspect than its image", _sensor_depth_aspect, ("001.png", "10x10", "aspect")),
+    Case("depth_unit_scale_factor not positive", _sensor_depth_scale, ("transforms.json", "depth_unit_scale_factor")),
+    Case("mask file missing (mask_path)", _mask_missing, ("transforms.json", "masks/001.png", "not found")),
+    Case("mask with another aspect than its image", _mask_aspect, ("001.png", "9x9", "aspect")),
+    Case("applied_transform not rigid", _applied_transform_not_rigid, ("transforms.json", "applied_transform", "rigid")),
+    Case("split files without transforms_train.json", _split_files_without_train,
+         ("transforms_train.json", "training views are missing")),
+    Case("transforms_train.json with no image file", _split_train_without_images, ("transforms_train.json", "no training view")),
+    Case("split files with a single view", _split_files_one_view, ("transforms_train.json", "at least 2 views")),
 ]

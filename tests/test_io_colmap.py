@@ -20,12 +20,15 @@ from scenelabel.data.io.colmap import (
     FAR_PERCENTILE,
     NEAR_MARGIN,
     NEAR_PERCENTILE,
+    colmap_camera_model,
     colmap_intrinsics,
     find_sparse_dir,
     read_colmap_cameras,
 )
 from scenelabel.data.io.llff import read_poses_bounds
 from scenelabel.errors import InputError
+from scenelabel.geometry.lens import pixels_from_camera_points
+from scenelabel.geometry.rays import camera_directions_from_pixels
 
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
@@ -208,6 +211,68 @@ def test_distortion_matches_colmap_projection(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
+# fisheye cameras
+
+
+FISHEYES = {
+    1: ("SIMPLE_RADIAL_FISHEYE", [30.0, 20.5, 14.5, 0.04], (30.0, 30.0, 20.5, 14.5), [0.04, 0.0, 0.0, 0.0]),
+    2: ("RADIAL_FISHEYE", [28.0, 19.0, 16.0, 0.05, -0.01], (28.0, 28.0, 19.0, 16.0), [0.05, -0.01, 0.0, 0.0]),
+    3: (
+        "OPENCV_FISHEYE",
+        [26.0, 27.0, 21.0, 15.5, 0.06, -0.02, 0.004, -0.001],
+        (26.0, 27.0, 21.0, 15.5),
+        [0.06, -0.02, 0.004, -0.001],
+    ),
+}
+
+
+@pytest.mark.parametrize("camera_id", sorted(FISHEYES))
+def test_fisheye_models_map_to_opencv_equidistant(camera_id: int) -> None:
+    model, params, expected, distortion = FISHEYES[camera_id]
+    fx, fy, cx, cy, coeffs = colmap_intrinsics(model, params)
+    assert (fx, fy, cx, cy) == expected
+    np.testing.assert_array_equal(coeffs, distortion)
+    assert colmap_camera_model(model) == "fisheye"
+    assert colmap_camera_model("OPENCV") == colmap_camera_model("SIMPLE_RADIAL") == "pinhole"
+
+
+@pytest.mark.parametrize("fmt", ["txt", "bin"])
+def test_fisheye_model_loads_and_projects_as_colmap(tmp_path: Path, fmt: str) -> None:
+    """A COLMAP model of fisheye cameras loads with model "fisheye" and COLMAP's coefficients; our
+    projection lands where pycolmap's does, and our pixel rays are pycolmap's."""
+    scene = _load_quietly(make_colmap(tmp_path, fmt, cameras=FISHEYES))
+    assert scene.info["camera_models"] == sorted(m for m, *_ in FISHEYES.values())
+    cams = scene.cameras
+    np.testing.assert_array_equal(cams.model, "fisheye")
+    xyz = np.array([[0.3, -0.2, 1.0], [-0.8, 0.5, 0.6], [0.1, 0.15, 1.0], [1.5, -0.3, 0.4]])  # camera frame, z > 0
+    pixels = np.array([[0.5, 0.5], [39.5, 29.5], [20.0, 15.0], [3.25, 27.5]])
+    for i, name in enumerate(SORTED_NAMES):
+        model, params, (fx, fy, cx, cy), distortion = FISHEYES[VIEWS[name][1]]
+        assert (cams.fx[i], cams.fy[i], cams.cx[i], cams.cy[i]) == (fx, fy, cx, cy)
+        np.testing.assert_array_equal(cams.distortion[i], distortion)
+        camera = pycolmap.Camera(camera_id=1, model=model, width=SIZE[0], height=SIZE[1], params=params)
+        uv = pixels_from_camera_points(xyz, fx, fy, cx, cy, cams.distortion[i], "fisheye")
+        np.testing.assert_allclose(uv, camera.img_from_cam(xyz), atol=1e-9)
+        dirs = camera_directions_from_pixels(pixels, fx, fy, cx, cy, cams.distortion[i], "fisheye")
+        np.testing.assert_allclose(dirs[:, :2] / dirs[:, 2:], camera.cam_from_img(pixels), atol=1e-9)
+
+
+def test_fisheye_downscale_keeps_model_and_coefficients(tmp_path: Path) -> None:
+    root = make_colmap(tmp_path, cameras=FISHEYES, image_folders={"images": SIZE, "images_2": (20, 15)})
+    full, half = _load_quietly(root), _load_quietly(root, downscale=2)
+    np.testing.assert_array_equal(half.cameras.model, full.cameras.model)
+    np.testing.assert_array_equal(half.cameras.distortion, full.cameras.distortion)  # normalised coordinates
+    np.testing.assert_allclose(half.cameras.fx, full.cameras.fx / 2, rtol=1e-12)
+    # the same continuous image point has the same ray at both resolutions
+    for i in range(len(full)):
+        a = camera_directions_from_pixels(np.array([[3.0, 4.0]]), half.cameras.fx[i], half.cameras.fy[i], half.cameras.cx[i],
+                                          half.cameras.cy[i], half.cameras.distortion[i], "fisheye")
+        b = camera_directions_from_pixels(np.array([[6.0, 8.0]]), full.cameras.fx[i], full.cameras.fy[i], full.cameras.cx[i],
+                                          full.cameras.cy[i], full.cameras.distortion[i], "fisheye")
+        np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
 # downscale
 
 
@@ -380,8 +445,12 @@ def test_labels_without_classes(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "model, params, pattern",
     [
-        ("OPENCV_FISHEYE", [50.0, 50.0, 20.0, 15.0, 0.1, 0.0, 0.0, 0.0], r"OPENCV_FISHEYE.*colmap image_undistorter"),
-        ("SIMPLE_RADIAL_FISHEYE", [50.0, 20.0, 15.0, 0.1], r"SIMPLE_RADIAL_FISHEYE.*colmap image_undistorter"),
+        ("FOV", [50.0, 50.0, 20.0, 15.0, 0.9], r"FOV.*supported: .*OPENCV_FISHEYE.*colmap image_undistorter"),
+        (
+            "THIN_PRISM_FISHEYE",
+            [50.0, 50.0, 20.0, 15.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            r"THIN_PRISM_FISHEYE.*colmap image_undistorter",
+        ),
         ("FULL_OPENCV", [50.0, 50.0, 20.0, 15.0, 0.1, 0.0, 0.0, 0.0, 0.01, 0, 0, 0], r"FULL_OPENCV with non-zero k3..k6.*image_undistorter"),
     ],
 )

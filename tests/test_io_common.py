@@ -250,11 +250,11 @@ def test_load_scene_missing_folder(tmp_path: Path) -> None:
 
 
 def test_load_scene_unknown_folder_says_what_is_expected(tmp_path: Path) -> None:
-    (tmp_path / "transforms_train.json").write_text("{}")
+    (tmp_path / "transforms_orig.json").write_text("{}")  # (split files transforms_train.json etc. load: test_splits.py)
     with pytest.raises(InputError) as info:
         load_scene(tmp_path)
     message = str(info.value)
-    for expected in (str(tmp_path), "transforms.json", "poses_bounds.npy", "COLMAP", "structure from motion", "transforms_train.json"):
+    for expected in (str(tmp_path), "transforms.json", "poses_bounds.npy", "COLMAP", "structure from motion", "transforms_orig.json"):
         assert expected in message
 
 

@@ -348,9 +348,10 @@ def test_bad_transforms_json(tmp_path: Path, edit: Callable[[dict], None], patte
 @pytest.mark.parametrize(
     "top, pattern",
     [
-        ({"camera_model": "OPENCV_FISHEYE"}, r"\$\.camera_model.*'OPENCV_FISHEYE' is not supported"),
+        ({"camera_model": "FISHEYE624"}, r"\$\.camera_model.*'FISHEYE624' is not supported; supported: .*OPENCV_FISHEYE"),
         ({"camera_model": "EQUIRECTANGULAR"}, r"\$\.camera_model.*not supported"),
-        ({"is_fisheye": True}, r"\$\.is_fisheye.*fisheye"),
+        ({"is_fisheye": True, "camera_model": "OPENCV"}, r"\$\.is_fisheye.*'OPENCV' is a pinhole model"),
+        ({"camera_model": "OPENCV_FISHEYE", "p1": 0.01}, r"\$\.p1.*an OpenCV fisheye has only k1, k2, k3, k4"),
         ({"aabb": [[0, 0, 0], [1, -1, 1]]}, r"\$\.aabb.*min corner must be below"),
         ({"aabb": [[0, 0, 0]]}, r"\$\.aabb.*too short"),
         ({"frame_id": 3}, r"\$\.frame_id.*not of type 'string'"),
@@ -365,6 +366,40 @@ def test_supported_camera_model_loads(tmp_path: Path) -> None:
     scene = load_quiet(make_scene(tmp_path, camera_model="OPENCV", k1=0.01))
     assert scene.info["camera_model"] == "OPENCV"
     assert scene.cameras.distortion[0, 0] == 0.01
+    np.testing.assert_array_equal(scene.cameras.model, "pinhole")
+
+
+FISHEYE_K = {"k1": 0.05, "k2": -0.01, "k3": 0.002, "k4": -0.0005}
+
+
+def test_opencv_fisheye_loads_k1_to_k4_with_per_frame_overrides(tmp_path: Path) -> None:
+    def edit(data: dict) -> None:
+        data["frames"][1].update(k3=0.003, fl_x=12.0)
+
+    scene = load_quiet(make_scene(tmp_path, edit=edit, camera_model="OPENCV_FISHEYE", **FISHEYE_K))
+    cams = scene.cameras
+    assert scene.info["camera_model"] == "OPENCV_FISHEYE"
+    np.testing.assert_array_equal(cams.model, ["fisheye"] * 3)
+    np.testing.assert_array_equal(cams.distortion[0], [0.05, -0.01, 0.002, -0.0005])
+    np.testing.assert_array_equal(cams.distortion[1], [0.05, -0.01, 0.003, -0.0005])
+    np.testing.assert_array_equal(cams.fx, [10.0, 12.0, 10.0])
+
+
+def test_is_fisheye_flag_means_opencv_fisheye(tmp_path: Path) -> None:
+    cams = load_quiet(make_scene(tmp_path, is_fisheye=True, **FISHEYE_K)).cameras
+    np.testing.assert_array_equal(cams.model, "fisheye")
+    np.testing.assert_array_equal(cams.distortion, np.tile([0.05, -0.01, 0.002, -0.0005], (3, 1)))
+    plain = load_quiet(make_scene(tmp_path / "plain", is_fisheye=False, k1=0.01)).cameras
+    np.testing.assert_array_equal(plain.model, "pinhole")
+
+
+def test_fisheye_downscale_keeps_coefficients(tmp_path: Path) -> None:
+    root = make_scene(tmp_path, camera_model="OPENCV_FISHEYE", **FISHEYE_K)
+    full, half = load_quiet(root).cameras, load_quiet(root, downscale=2).cameras
+    np.testing.assert_array_equal(half.model, "fisheye")
+    np.testing.assert_array_equal(half.distortion, full.distortion)  # they act on normalised coordinates
+    np.testing.assert_allclose(half.fx, full.fx / 2)
+    np.testing.assert_allclose(half.cx, full.cx / 2)
 
 
 def test_invalid_json_syntax(tmp_path: Path) -> None:

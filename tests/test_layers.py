@@ -180,6 +180,7 @@ MAX_PARAMETERS = 10
 PUBLIC_API_EXCEPTIONS = {
     "scenelabel.query.field:render",  # c2w, size, intrinsics, smoothing, axes, distortion, near, far
     "scenelabel.query.map_writer:write_occupancy_map",  # occupancy_map's and to_zarr's options, a client
+    "scenelabel.geometry.cameras:create",  # one argument per field of the Cameras dataclass it builds
 }
 
 

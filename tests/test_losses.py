@@ -7,7 +7,10 @@ import pytest
 import torch
 
 from scenelabel.train.losses import (
+    DEPTH_HUBER,
     class_balance_weights,
+    depth_loss,
+    free_space_loss,
     photometric_mse,
     semantic_cross_entropy,
     semantic_focal_loss,
@@ -143,3 +146,57 @@ def test_solid_interior_loss_finite_at_extremes():
         loss = solid_interior_loss(sigmas, 1e-6)
         loss.backward()
         assert torch.isfinite(loss) and torch.isfinite(sigmas.grad).all()
+
+
+def _depth_loss_loop(termination, target):
+    """Huber on the relative error, the rays with a measurement only (float64 loop)."""
+    terms = []
+    for t, z in zip(termination, target):
+        if not (math.isfinite(z) and z > 0):
+            continue
+        e = abs((t - z) / z)
+        terms.append(0.5 * e * e / DEPTH_HUBER if e < DEPTH_HUBER else e - 0.5 * DEPTH_HUBER)
+    return sum(terms) / len(terms) if terms else 0.0
+
+
+def test_depth_loss_matches_a_float64_loop_and_skips_holes():
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0.1, 10.0, 64)
+    target[::7] = np.nan  # holes
+    target[3] = 0.0  # a sensor's "no return"
+    termination = target * rng.uniform(0.9, 1.1, 64)
+    termination = np.where(np.isfinite(termination), termination, 1.0)
+    got = depth_loss(torch.tensor(termination), torch.tensor(target))
+    assert math.isclose(float(got), _depth_loss_loop(termination, target), rel_tol=1e-9)
+
+
+def test_depth_loss_is_robust_to_an_outlier_and_zero_without_measurements():
+    target = torch.ones(10)
+    near = torch.full((10,), 1.01)
+    wild = near.clone()
+    wild[0] = 100.0  # a flying pixel: pulls linearly, not quadratically
+    outlier = (99.0 - 0.5 * DEPTH_HUBER) / 10  # linear in the error, not quadratic
+    near_one = 0.5 * 0.01**2 / DEPTH_HUBER / 10
+    assert math.isclose(float(depth_loss(wild, target)) - float(depth_loss(near, target)), outlier - near_one, rel_tol=1e-5)
+    pred = torch.ones(4, requires_grad=True)
+    loss = depth_loss(pred, torch.full((4,), float("nan")))
+    loss.backward()
+    assert float(loss) == 0.0 and torch.all(pred.grad == 0)
+
+
+def test_depth_loss_finite_at_extreme_distances():
+    for scale in (1e-6, 1.0, 1e6):
+        target = torch.full((8,), scale, dtype=torch.float32)
+        pred = (target * 1.5).requires_grad_()
+        loss = depth_loss(pred, target)
+        loss.backward()
+        assert math.isfinite(float(loss)) and torch.all(torch.isfinite(pred.grad))
+        assert math.isclose(float(loss), 0.5 - 0.5 * DEPTH_HUBER, rel_tol=1e-5)  # scale-free: a relative error
+
+
+def test_free_space_loss_means_front_weight_over_measured_rays():
+    front = torch.tensor([0.5, 0.2, 0.9, 0.0])
+    target = torch.tensor([1.0, float("nan"), 2.0, 3.0])
+    assert math.isclose(float(free_space_loss(front, target)), (0.5 + 0.9 + 0.0) / 3, rel_tol=1e-6)
+    assert float(free_space_loss(front, torch.full((4,), float("nan")))) == 0.0
+

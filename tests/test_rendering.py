@@ -18,6 +18,7 @@ from scenelabel.render.volume import (
     depth_from_weights,
     depth_of_max_weight,
     distortion_from_weights,
+    weight_before,
     weights_from_density,
 )
 
@@ -328,3 +329,16 @@ def test_depth_of_max_weight_is_the_middle_of_the_heaviest_interval():
     assert float(depth[0]) == 2.5  # the spike, not the mean (1.9) nor the median
     assert math.isinf(float(depth[1]))  # no weight: no surface
     assert float(depth[2]) == 0.5  # ties: the nearer interval
+
+
+def test_weight_before_matches_a_float64_loop_and_ignores_nan_limits():
+    rng = np.random.default_rng(3)
+    weights = rng.uniform(0, 0.2, (6, 9))
+    t_ends = np.cumsum(rng.uniform(0.05, 0.3, (6, 9)), axis=1)
+    t_free = rng.uniform(0.0, 2.0, 6)
+    t_free[2] = np.nan
+    expected = [sum(w for w, e in zip(weights[r], t_ends[r]) if e <= t_free[r]) for r in range(6)]
+    got = weight_before(torch.tensor(weights), torch.tensor(t_ends), torch.tensor(t_free)).numpy()
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    assert got[2] == 0.0
+

@@ -273,6 +273,21 @@ def test_render_keeps_rays_within_near_far_and_render_camera_passes_the_cameras_
     assert not np.array_equal(unbounded.depth, got.depth)
 
 
+def test_render_camera_of_a_fisheye_uses_its_model(field):
+    """render_camera passes a camera's lens model: a fisheye renders as render(camera_model="fisheye")
+    does, not as the pinhole with the same intrinsics."""
+    cams = field.training_cameras()
+    k = np.array([0.02, -0.001, 0.0, 0.0])
+    fisheyes = type(cams)(**{**vars(cams), "model": np.full(len(cams), "fisheye"), "distortion": np.tile(k, (len(cams), 1))})
+    got = field.render_camera(fisheyes, 0)
+    cam = cams[0]
+    near, far = (float(v[0]) if np.isfinite(v[0]) else None for v in (cam.near, cam.far))
+    want = field.render(cam.c2w[0], int(cam.width[0]), int(cam.height[0]), (cam.fx[0], cam.fy[0]), cam.cx[0], cam.cy[0],
+                        distortion=k, near=near, far=far, camera_model="fisheye")
+    np.testing.assert_array_equal(got.depth, want.depth)
+    assert not np.array_equal(got.depth, field.render_camera(cams, 0).depth)
+
+
 def test_reprs_are_one_short_line(field):
     """print() of a field, its baked twin, answers and maps says what they are, not their arrays."""
     from scenelabel import BakedField

@@ -1,6 +1,8 @@
 """Training stops cleanly when it goes wrong, and keeps the last good checkpoint; NeRF's coarse
 and fine networks train together and resume together."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -9,8 +11,10 @@ from scenelabel import SemanticField, TrainingError, build, load_scene, preset, 
 from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.render.marcher import CompositeOptions
 from scenelabel.train.losses import total_variation
 from scenelabel.train.pipeline import prepare_training
+from scenelabel.train.trainer import free_space_limit
 
 pytestmark = pytest.mark.slow
 
@@ -152,3 +156,107 @@ def test_a_random_background_makes_every_training_ray_opaque(scene, tmp_path):
         assert np.all(np.isfinite(rays.rgb))
         opacity[name] = float(np.median(rays.opacity))
     assert opacity["white"] < 0.5 < 0.9 < opacity["random"], opacity
+
+
+# ------------------------------------------------------------------ sensor depth and masks
+
+
+def _with_sensor_depth(scene, factor=1.0):
+    """The loaded toy scene with its exact depth (times ``factor``) as sensor depth, NaN off the boxes."""
+    return dataclasses.replace(
+        scene, sensor_depths=[np.where(d > 0, d * factor, np.nan).astype(np.float32) for d in scene.depths]
+    )
+
+
+def test_without_sensor_depth_the_depth_weight_changes_nothing(scene):
+    """The depth terms are off when no view has sensor depth: the same steps, the same losses."""
+    losses = {}
+    for weight in (0.0, 1.0):
+        trainer, _, _ = prepare_training(load_scene(scene), preset("quick", {"train": {"depth_weight": weight}}), torch.device("cpu"))
+        assert trainer.rays.depth is None
+        logs = [trainer.train_step() for _ in range(5)]
+        assert all(log["depth"] == 0.0 for log in logs)
+        losses[weight] = [log["loss"] for log in logs]
+    assert losses[0.0] == losses[1.0]
+
+
+def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
+    """From the same start, with the depth terms the training rays carry much less weight in front
+    of the measured surfaces (the free-space term's quantity) than without them."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    front = {}
+    for weight in (0.0, 0.1):
+        config = preset("quick", {"train": {"steps": 200, "depth_weight": weight}})
+        trainer, _, _ = prepare_training(loaded, config, torch.device("cpu"))
+        logs = [trainer.train_step() for _ in range(200)]
+        assert all(np.isfinite(log["depth"]) for log in logs) and (logs[-1]["depth"] > 0) == (weight > 0)
+        r = trainer.rays
+        idx = torch.nonzero(torch.isfinite(r.depth)).squeeze(1)
+        with torch.no_grad():
+            out, _, _ = trainer.render(
+                r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], torch.full((len(idx),), 0.5),
+                options=CompositeOptions(free_until=free_space_limit(r.depth[idx], trainer.marching.step)),
+            )
+        front[weight] = float(out.front_weight.mean())
+    assert front[0.1] < 0.5 * front[0.0], front
+
+
+def test_masked_pixels_give_no_training_rays(scene):
+    loaded = load_scene(scene)
+    masks = [np.zeros(im.shape[:2], bool) for im in loaded.images]
+    for m in masks:
+        m[:, : m.shape[1] // 2] = True  # the left half of every view is used
+    masked = dataclasses.replace(loaded, masks=masks)
+    full, _, _ = prepare_training(loaded, preset("quick"), torch.device("cpu"))
+    half, _, _ = prepare_training(masked, preset("quick"), torch.device("cpu"))
+    assert len(half.rays) * 2 == len(full.rays)
+    # the rays kept are the left halves: the same rgb targets as the unmasked scene's left halves
+    keep = torch.as_tensor(np.concatenate([m.reshape(-1) for i, m in enumerate(masks) if i % 8]))
+    torch.testing.assert_close(half.rays.rgb, full.rays.rgb[keep])
+
+
+def test_sensor_depth_bounds_the_scene_without_a_coarse_fit(scene, monkeypatch):
+    """No near/far and no box, but sensor depth: the bounds come from the depth, back-projected."""
+    import scenelabel.train.pipeline as pipeline
+
+    loaded = load_scene(scene)
+    cameras = dataclasses.replace(loaded.cameras, near=np.full(len(loaded), np.nan), far=np.full(len(loaded), np.nan))
+    bare = dataclasses.replace(_with_sensor_depth(loaded), cameras=cameras, aabb=None)
+
+    def no_coarse_fit(*args, **kwargs):
+        raise AssertionError("the coarse fit ran although the views have sensor depth")
+
+    monkeypatch.setattr(pipeline, "observed_points", no_coarse_fit)
+    _, static, _ = prepare_training(bare, preset("quick"), torch.device("cpu"))
+    assert static["aabb_source"].startswith("sensor depth")
+    aabb = np.asarray(static["aabb_world"])
+    points = pipeline.sensor_depth_points(bare, list(range(len(bare))))
+    inside = np.all((points >= aabb[0]) & (points <= aabb[1]), axis=1)
+    assert inside.mean() > 0.98
+
+
+def test_poses_of_another_unit_are_scaled_to_the_sensor_depth(scene, tmp_path):
+    """Poses in half-metres (as SfM might give) with depth in metres: the build scales to metres and
+    records the factor like --scale."""
+    loaded = load_scene(scene)
+    halved = dataclasses.replace(loaded.scaled(2.0), sensor_depths=_with_sensor_depth(loaded).sensor_depths)
+    config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False, "write_renders": False}})
+    result = build(halved, tmp_path / "out", config, progress=False)
+    meta = result.field.meta
+    assert meta["world_scale"] == pytest.approx(1.0, rel=0.01)  # 2 x (1 / 2): back in metres
+    assert meta["scene_info"]["scale_source"] == "sensor depth"
+
+
+def test_sensor_depth_turns_the_solid_interior_term_on(scene):
+    """With sensor depth the solid-interior term runs at train.depth_solid_weight at least; without
+    depth (or with the depth terms off) at train.solid_weight alone."""
+    loaded = load_scene(scene)
+    cases = [
+        (_with_sensor_depth(loaded), {}, 0.01),
+        (_with_sensor_depth(loaded), {"solid_weight": 0.05}, 0.05),
+        (_with_sensor_depth(loaded), {"depth_weight": 0.0}, 0.0),
+        (loaded, {}, 0.0),
+    ]
+    for data, train, expected in cases:
+        trainer, _, _ = prepare_training(data, preset("quick", {"train": train}), torch.device("cpu"))
+        assert trainer.solid_weight == expected, (train, expected)

@@ -28,7 +28,7 @@ def main() -> None:
 
     from scenelabel import SemanticField, build, preset, write_toy_scene
     from scenelabel.data.io import load_scene
-    from scenelabel.train.pipeline import evaluate, split_views
+    from scenelabel.train.pipeline import choose_views, evaluate
 
     with tempfile.TemporaryDirectory() as tmp:
         if args.build is None:
@@ -40,7 +40,7 @@ def main() -> None:
             out_dir, scene_dir = args.build, args.scene or args.build.resolve().parent
         field = SemanticField.load(out_dir)
         scene = load_scene(scene_dir, field.config.data.downscale)
-        _, test = split_views(len(scene), field.config.train.holdout)
+        _, test, _ = choose_views(scene, field.config.train.holdout)
         renders = Path(tmp) / "renders"
         renders.mkdir()
         metrics = evaluate(field, scene, test[:1], field.config.output.smooth_sigma, renders)

@@ -26,7 +26,7 @@ OFFSETS = (-0.2, -0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1, 0.2)
 def main() -> None:
     from scenelabel import SemanticField, load_scene
     from scenelabel.geometry.rays import rays_from_cameras
-    from scenelabel.train.pipeline import split_views
+    from scenelabel.train.pipeline import choose_views
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene")
@@ -37,7 +37,7 @@ def main() -> None:
     args = parser.parse_args()
 
     scene, field = load_scene(args.scene), SemanticField.load(args.build)
-    _, test = split_views(len(scene), field.config.train.holdout)
+    _, test, _ = choose_views(scene, field.config.train.holdout)
     parts = [(*rays_from_cameras(scene.cameras, i), scene.depths[i].reshape(-1)) for i in test]
     o, d, z = (np.concatenate([p[k] for p in parts]) for k in range(3))
     hit = z > 0

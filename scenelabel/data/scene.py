@@ -6,10 +6,14 @@ Every loader in :mod:`scenelabel.data.io` converts its input into these types; s
 - Cameras: ``c2w`` is camera-to-world with **OpenCV camera axes** (x right, y down, z forward),
   in the input's own world frame and units. Intrinsics in pixels; the centre of pixel (col, row)
   is at (col + 0.5, row + 0.5).
-- Images: float32 RGB in [0, 1], shape [height, width, 3].
+- Images: float32 RGB in [0, 1], shape [height, width, 3]; an alpha channel is kept beside them
+  (``Scene.image_alphas``), not composited.
 - Labels: int64 external class ids (those of classes.json), shape [height, width];
   ``ignore_index`` marks unlabelled pixels.
-- Depths (ground truth, synthetic scenes only): distance along the unit ray direction.
+- Depths (ground truth for scoring, synthetic scenes only): distance along the unit ray direction.
+- Sensor depths (measurements used for training: RGB-D cameras, phone LiDAR): distance along the
+  unit ray of each colour pixel, world units, NaN where there is no measurement.
+- Masks: bool [height, width], True = use the pixel, False = ignore it (nerfstudio ``mask_path``).
 """
 
 from __future__ import annotations
@@ -43,6 +47,18 @@ class Scene:
         ignore_index: the label value of unlabelled pixels, or None.
         aabb: [2, 3] explicit scene bounds (min corner, max corner) from the input, or None.
         frame_id: name of the world frame (for exports).
+        info: loader facts (format, source, ...), recorded in the checkpoint.
+        sensor_depths: None (no sensor depth), or n arrays [h, w] float32 (distance along the unit ray
+            of each colour pixel, world units, NaN = no measurement) or None per view. Training
+            uses them (the depth loss); ``depths`` are only scored against.
+        masks: None (every pixel used), or n arrays [h, w] bool (False: the pixel is ignored by every
+            loss) or None per view.
+        splits: None (the build holds out every ``train.holdout``-th view), or the input's own split:
+            {"train": [...], "val": [...], "test": [...]} view indices (e.g. the Blender layout's
+            transforms_train / _val / _test files).
+        image_alphas: None (opaque images), or n arrays [h, w] float32 in [0, 1] (the image's alpha channel:
+            the pixel's colour is ``rgb * alpha + background * (1 - alpha)``, the background being
+            the build's ``train.background``) or None per view (an opaque image).
     """
 
     root: Path
@@ -56,6 +72,10 @@ class Scene:
     aabb: np.ndarray | None = None
     frame_id: str = "world"
     info: dict = field(default_factory=dict)
+    sensor_depths: list[np.ndarray | None] | None = None
+    masks: list[np.ndarray | None] | None = None
+    splits: dict[str, list[int]] | None = None
+    image_alphas: list[np.ndarray | None] | None = None
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -85,6 +105,12 @@ class Scene:
             aabb=None if self.aabb is None else np.asarray(self.aabb, np.float64) * factor,
             frame_id=self.frame_id,
             info={**self.info, "world_scale": self.info.get("world_scale", 1.0) * factor},
+            sensor_depths=None if self.sensor_depths is None else [
+                None if d is None else d * np.float32(factor) for d in self.sensor_depths
+            ],
+            masks=self.masks,
+            splits=self.splits,
+            image_alphas=self.image_alphas,
         )
 
 

@@ -38,6 +38,8 @@ __all__ = [
     "SUITE_CLASSES",
     "STRUCTURAL_PARTS",
     "SuiteSpec",
+    "check_cameras",
+    "loop_positions",
     "suite_cameras",
     "suite_geometry",
     "suite_spec",
@@ -475,7 +477,7 @@ def _best_pole(spec: SuiteSpec, rects) -> np.ndarray:
     return best
 
 
-def _loop_positions(spec: SuiteSpec, scene: SyntheticScene):
+def loop_positions(spec: SuiteSpec, scene: SyntheticScene):
     """Dense closed loop [m, 2] of camera positions and the point it goes round.
 
     The loop is the outer boundary (marching squares) of the largest component of the camera
@@ -530,7 +532,7 @@ def suite_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
     _check_spec(spec)
     h, n = spec.size[2], spec.n_views
     rng = np.random.default_rng([spec.seed, 3])
-    loop, pole = _loop_positions(spec, scene)
+    loop, pole = loop_positions(spec, scene)
     seg = np.linalg.norm(np.roll(loop, -1, axis=0) - loop, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     length = cum[-1]
@@ -555,7 +557,7 @@ def suite_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
     z_lo, z_hi = 0.1, h - 0.2
     tz = 0.5 * (z_lo + z_hi) + 0.5 * (z_hi - z_lo) * np.sin(k * phase + rng.uniform(0, 2 * np.pi))
     targets = np.stack([xy[:, 0] + 2.0 * np.cos(az), xy[:, 1] + 2.0 * np.sin(az), tz], axis=1)
-    _check_cameras(spec, scene, eyes)
+    check_cameras(spec, scene, eyes)
     return np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
 
 
@@ -571,7 +573,7 @@ def _turn_from_close_surfaces(eyes: np.ndarray, az: np.ndarray, scene: Synthetic
     return cand[np.arange(len(eyes)), pick]
 
 
-def _check_cameras(spec: SuiteSpec, scene: SyntheticScene, eyes: np.ndarray) -> None:
+def check_cameras(spec: SuiteSpec, scene: SyntheticScene, eyes: np.ndarray) -> None:
     sx, sy, h = spec.size
     inside = (eyes > 0).all(axis=1) & (eyes[:, 0] < sx) & (eyes[:, 1] < sy) & (eyes[:, 2] < h)
     if not inside.all():

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.lens import CAMERA_MODELS, FISHEYE, PINHOLE
 
 __all__ = ["Cameras", "OPENGL_TO_OPENCV", "opengl_to_opencv", "opencv_to_opengl", "cameras_to_dict", "cameras_from_dict"]
 
@@ -20,22 +21,29 @@ __all__ = ["Cameras", "OPENGL_TO_OPENCV", "opengl_to_opencv", "opencv_to_opengl"
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 CAMERA_FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height", "distortion", "near", "far")
-"""The fields of :class:`Cameras` a camera record (:func:`cameras_to_dict`) carries."""
+"""The fields of :class:`Cameras` a camera record (:func:`cameras_to_dict`) carries ..."""
+
+OPTIONAL_CAMERA_FIELDS = {"model": PINHOLE}
+"""... and those it may lack (a record written before the field existed), with their default."""
 
 INT_FIELDS = ("width", "height")
 
 
 @dataclass(frozen=True)
 class Cameras:
-    """A batch of pinhole cameras (optionally with OpenCV radial-tangential distortion).
+    """A batch of cameras: pinholes (optionally with OpenCV radial-tangential distortion) or
+    equidistant fisheyes (docs/conventions.md, "Camera models"; :mod:`scenelabel.geometry.lens`).
 
     Attributes:
         c2w: [n, 4, 4] float64 camera-to-world, OpenCV axes (x right, y down, z forward).
         fx, fy, cx, cy: [n] float64 intrinsics in pixels (cx, cy from the top-left image corner).
         width, height: [n] int64 image size in pixels.
-        distortion: [n, 4] float64 OpenCV (k1, k2, p1, p2); zeros for an ideal pinhole.
+        distortion: [n, 4] float64 the model's coefficients: a pinhole's OpenCV (k1, k2, p1, p2),
+            zeros for an ideal pinhole; a fisheye's OpenCV (k1, k2, k3, k4).
         near, far: [n] float64 scene depth range seen by each camera (distance along the unit
             ray); NaN where the input does not say.
+        model: [n] str, ``"pinhole"`` or ``"fisheye"`` per camera; None (the default) means every
+            camera is a pinhole.
     """
 
     c2w: np.ndarray
@@ -48,6 +56,7 @@ class Cameras:
     distortion: np.ndarray
     near: np.ndarray
     far: np.ndarray
+    model: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = self.c2w.shape[0] if self.c2w.ndim == 3 else -1
@@ -58,6 +67,13 @@ class Cameras:
                 raise InputError(f"{name} must have shape [{n}], got {getattr(self, name).shape}", field=name)
         if self.distortion.shape != (n, 4):
             raise InputError(f"distortion must have shape [{n}, 4], got {self.distortion.shape}", field="distortion")
+        model = np.full(n, PINHOLE) if self.model is None else np.asarray(self.model, dtype=np.str_)
+        if model.shape != (n,):
+            raise InputError(f"model must have shape [{n}], got {model.shape}", field="model")
+        unknown = sorted(set(model.tolist()) - set(CAMERA_MODELS))
+        if unknown:
+            raise InputError(f"unknown camera model {unknown[0]!r}; known: {', '.join(CAMERA_MODELS)}", field="model")
+        object.__setattr__(self, "model", model)
 
     @staticmethod
     def create(
@@ -71,8 +87,10 @@ class Cameras:
         distortion=None,
         near=None,
         far=None,
+        model=None,
     ) -> "Cameras":
-        """Build cameras from per-camera arrays or scalars broadcast to all cameras."""
+        """Build cameras from per-camera arrays or scalars broadcast to all cameras (``model``:
+        ``"pinhole"`` when None)."""
         c2w = np.asarray(c2w, dtype=np.float64)
         if c2w.ndim == 2:
             c2w = c2w[None]
@@ -94,6 +112,7 @@ class Cameras:
             distortion=dist,
             near=per_cam(near, np.float64),
             far=per_cam(far, np.float64),
+            model=per_cam(model, np.str_, PINHOLE),
         )
 
     def __len__(self) -> int:
@@ -111,8 +130,14 @@ class Cameras:
 
     @property
     def has_distortion(self) -> np.ndarray:
-        """[n] bool: the camera has non-zero distortion coefficients."""
+        """[n] bool: the camera has non-zero distortion coefficients (a fisheye without is still
+        a fisheye: see ``model``)."""
         return np.any(self.distortion != 0, axis=1)
+
+    @property
+    def is_fisheye(self) -> np.ndarray:
+        """[n] bool: the camera is an equidistant fisheye."""
+        return self.model == FISHEYE
 
 
 def opengl_to_opencv(c2w: np.ndarray) -> np.ndarray:
@@ -131,17 +156,19 @@ def opencv_to_opengl(c2w: np.ndarray) -> np.ndarray:
 
 def cameras_to_dict(cameras: Cameras) -> dict[str, list]:
     """Cameras as plain lists (for checkpoints): the fields of :class:`Cameras`."""
-    return {name: getattr(cameras, name).tolist() for name in CAMERA_FIELDS}
+    return {name: getattr(cameras, name).tolist() for name in (*CAMERA_FIELDS, *OPTIONAL_CAMERA_FIELDS)}
 
 
 def cameras_from_dict(data: dict[str, Any]) -> Cameras:
-    """Inverse of :func:`cameras_to_dict`."""
+    """Inverse of :func:`cameras_to_dict`; a record without ``model`` (written before fisheye
+    cameras existed) holds pinholes."""
     try:
-        return Cameras(
-            **{
-                name: np.asarray(data[name], dtype=np.int64 if name in INT_FIELDS else np.float64)
-                for name in CAMERA_FIELDS
-            }
-        )
+        fields = {
+            name: np.asarray(data[name], dtype=np.int64 if name in INT_FIELDS else np.float64) for name in CAMERA_FIELDS
+        }
+        n = fields["c2w"].shape[0] if fields["c2w"].ndim == 3 else 0
+        for name, default in OPTIONAL_CAMERA_FIELDS.items():
+            fields[name] = np.asarray(data.get(name, [default] * n), dtype=np.str_)
+        return Cameras(**fields)
     except KeyError as err:
         raise InputError(f"camera record lacks {err.args[0]!r}", field=str(err.args[0])) from None

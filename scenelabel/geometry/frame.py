@@ -53,7 +53,7 @@ def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.nd
         w, h = float(cameras.width[i]), float(cameras.height[i])
         pix = np.array([[0, 0], [w, 0], [0, h], [w, h], [w / 2, h / 2]], dtype=np.float64)
         dirs = camera_directions_from_pixels(
-            pix, cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i], cameras.distortion[i]
+            pix, cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i], cameras.distortion[i], str(cameras.model[i])
         )
         dirs_w = dirs @ cameras.c2w[i, :3, :3].T
         origin = cameras.c2w[i, :3, 3]
@@ -104,11 +104,13 @@ def aabb_from_points(points: np.ndarray) -> np.ndarray | None:
 
 
 def aabb_from_cameras(
-    cameras: Cameras, explicit: np.ndarray | None = None, points: np.ndarray | None = None
+    cameras: Cameras, explicit: np.ndarray | None = None, points: np.ndarray | None = None,
+    points_source: str = "observed geometry",
 ) -> tuple[np.ndarray, str]:
     """Scene bounds: explicit ones when given; else, where the cameras have no far and enough
     observed ``points`` are given, the points' bounds (:func:`aabb_from_points`) within the camera
-    frusta; else the union of the camera frusta over [near, far].
+    frusta; else the union of the camera frusta over [near, far]. ``points_source`` names where the
+    points came from in the returned word (a coarse fit's "observed geometry", or "sensor depth").
 
     Where a camera has no near/far, far = FALLBACK_FAR_FACTOR x the camera-centre diameter and
     near = FALLBACK_NEAR_FRACTION x far.
@@ -133,7 +135,7 @@ def aabb_from_cameras(
     if observed is not None:
         clipped = np.stack([np.maximum(observed[0], frusta[0]), np.minimum(observed[1], frusta[1])])
         if np.all(clipped[1] > clipped[0]):
-            return clipped, f"observed geometry ({len(points)} surface points; the input has no near/far or aabb)"
+            return clipped, f"{points_source} ({len(points)} surface points; the input has no near/far or aabb)"
     return frusta, source
 
 

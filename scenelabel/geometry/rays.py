@@ -10,11 +10,19 @@ import numpy as np
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.lens import CAMERA_MODELS, FISHEYE, PINHOLE, fisheye_directions_from_pixels
 
 __all__ = ["pixel_grid", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
 
 DIRECTION_EPS = 1e-12
 """Directions shorter than this cannot be normalised; :func:`normalize_directions` rejects them."""
+
+UNDISTORT_EPS_PX = 1e-10
+"""``cv2.undistortPoints`` iterates until the undistorted point reprojects within this many pixels
+of the distorted one (OpenCV's default stops after 5 iterations, up to ~1e-3 px off) ..."""
+
+UNDISTORT_MAX_ITER = 100
+"""... or after this many iterations."""
 
 
 def pixel_grid(width: int, height: int) -> np.ndarray:
@@ -28,24 +36,43 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
 
 
 def camera_directions_from_pixels(
-    pixels: np.ndarray, fx: float, fy: float, cx: float, cy: float, distortion: np.ndarray | None = None
+    pixels: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    distortion: np.ndarray | None = None,
+    model: str = PINHOLE,
 ) -> np.ndarray:
     """Camera-frame (OpenCV axes) ray directions through continuous pixel coordinates.
 
+    The inverse of :func:`scenelabel.geometry.lens.pixels_from_camera_points`.
+
     Args:
         pixels: [n, 2] (u, v) in pixels; a pixel's centre is (col + 0.5, row + 0.5).
-        fx, fy, cx, cy: pinhole intrinsics in pixels.
-        distortion: [4] OpenCV (k1, k2, p1, p2) or None; distorted pixels are undistorted with
-            ``cv2.undistortPoints`` (iterative inverse of the radial-tangential model).
+        fx, fy, cx, cy: intrinsics in pixels.
+        distortion: [4] the model's coefficients or None (zeros). A pinhole's OpenCV
+            (k1, k2, p1, p2): distorted pixels are undistorted with ``cv2.undistortPoints``
+            (iterative inverse of the radial-tangential model, run to UNDISTORT_EPS_PX); a
+            fisheye's (k1, k2, k3, k4): :func:`scenelabel.geometry.lens.fisheye_directions_from_pixels`.
+        model: ``"pinhole"`` or ``"fisheye"`` (docs/conventions.md, "Camera models").
     Returns:
-        [n, 3] float64 unit directions (z forward).
+        [n, 3] float64 unit directions (z forward for a pinhole; a fisheye's may point sideways
+        or backwards, z <= 0, past 90° from its axis).
     """
     pixels = np.asarray(pixels, dtype=np.float64)
+    if model == FISHEYE:
+        return fisheye_directions_from_pixels(pixels, fx, fy, cx, cy, np.zeros(4) if distortion is None else distortion)
+    if model != PINHOLE:
+        raise InputError(f"unknown camera model {model!r}; known: {', '.join(CAMERA_MODELS)}", field="model")
     if distortion is not None and np.any(np.asarray(distortion) != 0):
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         import cv2  # only for distortion: a planner's process answering rays need not load OpenCV
 
-        xy = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, np.asarray(distortion, np.float64)).reshape(-1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, UNDISTORT_MAX_ITER, UNDISTORT_EPS_PX)
+        xy = cv2.undistortPoints(
+            pixels.reshape(-1, 1, 2), K, np.asarray(distortion, np.float64), criteria=criteria
+        ).reshape(-1, 2)
     else:
         xy = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy], axis=-1)
     dirs = np.concatenate([xy, np.ones((len(xy), 1))], axis=-1)
@@ -66,7 +93,7 @@ def rays_from_cameras(cameras: Cameras, index: int, pixels: np.ndarray | None = 
     if pixels is None:
         pixels = pixel_grid(int(cam.width[0]), int(cam.height[0]))
     dirs_cam = camera_directions_from_pixels(
-        pixels, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0]
+        pixels, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0])
     )
     c2w = cam.c2w[0]
     directions = dirs_cam @ c2w[:3, :3].T

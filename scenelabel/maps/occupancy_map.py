@@ -75,7 +75,7 @@ from scenelabel.maps.codes import (
 )
 from scenelabel.maps.esdf import distance_at, distance_gradient_at, signed_distance
 from scenelabel.maps.pyramid import check_factor, check_levels, pool_block
-from scenelabel.maps.raycast import MapRayQuery, first_voxel_hits, ray_limits
+from scenelabel.maps.raycast import MapRayQuery, first_voxel_hits, leap_lengths, ray_limits
 from scenelabel.maps.validation import (
     check_classes,
     check_colors,
@@ -252,10 +252,15 @@ class OccupancyMap:
         each voxel centre to the nearest obstacle face, negative inside obstacles; UNKNOWN voxels and
         the map's outside count as obstacles (``unknown="occupied"``) or UNKNOWN as free space
         (``"free"``). :mod:`scenelabel.maps.esdf` has the rule; computed once per rule (read-only), or
-        for a map read by :meth:`from_zarr` taken from the store's ``esdf`` array (rule "occupied")."""
+        for a map read by :meth:`from_zarr` read from the store's ``esdf`` array (rule "occupied") on
+        the first call (InputError when it does not match ``label``)."""
         cache = self.__dict__.setdefault("_esdf", {})
         if unknown not in cache:
-            cache[unknown] = read_only(signed_distance(self.label, self.voxel_size, unknown))
+            stored = self.__dict__.get("_stored_esdf")
+            values = stored.read(self.label) if stored is not None and stored.rule == unknown else None
+            if values is None:
+                values = read_only(signed_distance(self.label, self.voxel_size, unknown))
+            cache[unknown] = values
         return cache[unknown]
 
     def distance(self, xyz: Any, unknown: str = "occupied") -> np.ndarray:
@@ -292,16 +297,26 @@ class OccupancyMap:
         if not np.all(np.isfinite(origins)) or not np.all(np.isfinite(norms) & (norms > 0)):
             raise InputError("origins must be finite and directions finite and non-zero", field="directions")
         directions = directions / norms
-        stop = self.label != FREE
-        depth, index = first_voxel_hits(origins, directions, stop, self.origin, self.voxel_size, near, far)
-        lo, hi = self.bounds
-        t_enter, t_exit = ray_box_distances(origins, directions, lo, hi)
-        near_n, far_n = ray_limits(len(origins), near, far)
-        entered = np.minimum(t_exit, far_n) > np.maximum(t_enter, near_n)
-        label = np.where(entered, FREE, UNKNOWN).astype(LABEL_DTYPE)
+        stop, leaps = self._stop_leaps()
+        depth, index = first_voxel_hits(origins, directions, stop, self.origin, self.voxel_size, near, far, leaps=leaps)
         hit = index[:, 0] >= 0
+        miss = ~hit  # FREE where the ray crossed the map within [near, far], UNKNOWN where it never entered it
+        lo, hi = self.bounds
+        t_enter, t_exit = ray_box_distances(origins[miss], directions[miss], lo, hi)
+        near_n, far_n = ray_limits(len(origins), near, far)
+        label = np.empty(len(origins), LABEL_DTYPE)
+        label[miss] = np.where(np.minimum(t_exit, far_n[miss]) > np.maximum(t_enter, near_n[miss]), FREE, UNKNOWN)
         label[hit] = self.label[tuple(index[hit].T)]
         return MapRayQuery(depth=depth, label=label, index=index)
+
+    def _stop_leaps(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The voxels that stop :meth:`cast_rays`' rays (label != FREE, [nx, ny, nz] bool) and their
+        :func:`leap_lengths` (None when there are none), computed once per map."""
+        cache = self.__dict__.get("_ray_stops")
+        if cache is None:
+            stop = self.label != FREE
+            cache = self.__dict__["_ray_stops"] = (stop, leap_lengths(stop) if stop.any() else None)
+        return cache
 
     # ---- pyramid ----
 
@@ -523,19 +538,19 @@ class OccupancyMap:
             path: the map's root group (a ``levels/L`` sub-group also reads, as a map of its own).
             level: pyramid level to read (0: full resolution; see the root's ``n_levels``).
         Returns:
-            the map; when the group has an ``esdf`` array, :meth:`esdf` returns it (checked against
-            ``label``) for its rule instead of computing it.
+            the map; when the group has an ``esdf`` array, :meth:`esdf` reads it on its first call
+            for its rule (checked against ``label`` then: InputError naming the path when it does
+            not match) instead of computing it.
         Raises:
             InputError naming the path and the attribute or array at fault: not a zarr group,
             not a scenelabel map, a newer format_version, an invalid or missing attribute, a
-            missing or malformed array (an ``esdf`` that does not match ``label`` included), a
-            level the map does not have.
+            missing or malformed array, a level the map does not have.
         """
-        import zarr
-
         path = Path(path).expanduser()
         if not path.exists():
             raise InputError("no occupancy map here (path does not exist)", path=path)
+        import zarr
+
         try:
             group = zarr.open_group(str(path), mode="r")
         except Exception as exc:  # zarr raises several types for "not a group"
@@ -572,7 +587,10 @@ class OccupancyMap:
                 raise InputError(f"{name!r} is not an array", path=path, field=name)
             if node.dtype != dtype:
                 raise InputError(f"array {name!r} has dtype {node.dtype}, expected {dtype}", path=path, field=name)
-            arrays[name] = np.asarray(node[...])
+            if name != ESDF_ARRAY:  # the ESDF is read on its first use (esdf())
+                arrays[name] = np.asarray(node[...])
+            elif (stored := stored_esdf(group, path)) is not None:
+                arrays[name] = stored
 
         classes = {int(c["id"]): str(c["name"]) for c in attrs["classes"]}
         colors = {int(c["id"]): tuple(c["color"]) for c in attrs["classes"] if c.get("color") is not None}
@@ -595,7 +613,7 @@ class OccupancyMap:
                 unknown_rule=attrs.get("unknown_rule", DEFAULT_UNKNOWN_RULE),  # version 1: bounds
             )
             if ESDF_ARRAY in arrays:  # maps written before it have none: esdf() computes it then
-                occ_map.__dict__["_esdf"] = stored_esdf(group, arrays[ESDF_ARRAY], occ_map.label)
+                occ_map.__dict__["_stored_esdf"] = arrays[ESDF_ARRAY]
         except InputError as exc:
             raise InputError(exc.problem, path=path, field=exc.field) from None
         return occ_map

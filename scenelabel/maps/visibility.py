@@ -7,9 +7,11 @@ the unit ray from the camera centre, and so are ``near`` and ``far``.
 
 The rule (docs/conventions.md, "Observed space"): a point ``p`` is *seen* by camera ``c`` when
 
-1. it is in front of the camera and inside its image rectangle: ``z > 0``,
-   ``0 <= u < width``, ``0 <= v < height`` with ``(u, v) = (fx x / z + cx, fy y / z + cy)``
-   (ideal pinhole: lens distortion is ignored here),
+1. its camera's lens model projects it (:func:`scenelabel.geometry.lens.pixels_from_camera_points`:
+   a pinhole needs ``z > 0``, a fisheye an angle from its axis it models) inside the image
+   rectangle: ``0 <= u < width``, ``0 <= v < height``; for an ideal pinhole
+   ``(u, v) = (fx x / z + cx, fy y / z + cy)`` (:func:`scaled_cameras` drops a pinhole's
+   distortion, keeps a fisheye's model: the depth maps' rays and the projection agree),
 2. its distance ``d = |p - centre|`` lies in the camera's ``[near, far]`` (unknown limits: 0, inf),
 3. it is not behind the first surface of the pixel it projects to:
    ``d <= depth[row, col] + margin + pixel_margin * d / min(fx, fy)``, where ``depth`` is the
@@ -46,9 +48,10 @@ import numpy as np
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lattice import voxel_centers
+from scenelabel.geometry.lens import FISHEYE, PINHOLE, pixels_from_camera_points
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.maps.codes import OCCUPIED_THRESHOLD, uint8_from_unit
-from scenelabel.maps.raycast import transmittance_crossings
+from scenelabel.maps.raycast import leap_lengths, transmittance_crossings
 
 __all__ = [
     "CameraSurfaces",
@@ -83,13 +86,15 @@ def scaled_cameras(cameras: Cameras, max_width: int = DEPTH_MAP_WIDTH) -> Camera
     Per camera ``w' = max(1, round(w * s))``, ``h' = max(1, round(h * s))`` with
     ``s = min(1, max_width / w)``; intrinsics scale per axis by ``w' / w`` and ``h' / h``, so the
     image rectangle covers the same rays (pixel centres stay at +0.5 of the new pixels).
-    Distortion is dropped (the small images are ideal pinholes).
+    A pinhole's distortion is dropped (the small images are ideal pinholes); a fisheye keeps its
+    model and coefficients (they act on normalised coordinates; as a pinhole its rays would be
+    far off).
 
     Args:
         cameras: n cameras.
         max_width: widest image allowed, pixels (>= 1).
     Returns:
-        n cameras, zero distortion, same poses and near / far.
+        n cameras: same poses, near / far and models, pinholes without distortion.
     """
     if int(max_width) < 1:
         raise InputError(f"max_width must be >= 1, got {max_width}", field="max_width")
@@ -107,33 +112,42 @@ def scaled_cameras(cameras: Cameras, max_width: int = DEPTH_MAP_WIDTH) -> Camera
         cy=cameras.cy * sy,
         width=new_w,
         height=new_h,
-        distortion=np.zeros_like(cameras.distortion),
+        distortion=np.where((cameras.model == FISHEYE)[:, None], cameras.distortion, 0.0),
         near=cameras.near.copy(),
         far=cameras.far.copy(),
+        model=cameras.model.copy(),
     )
 
 
 def project_points(
-    points: np.ndarray, c2w: np.ndarray, fx: float, fy: float, cx: float, cy: float
+    points: np.ndarray,
+    c2w: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    distortion: np.ndarray | None = None,
+    model: str = PINHOLE,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ideal-pinhole projection of world points into one camera (OpenCV axes).
+    """Projection of world points into one camera (OpenCV axes) through its lens model
+    (:func:`scenelabel.geometry.lens.pixels_from_camera_points`; an ideal pinhole by default).
 
     Args:
         points: [N, 3] world points.
         c2w: [4, 4] camera-to-world (OpenCV axes: x right, y down, z forward).
         fx, fy, cx, cy: intrinsics in pixels (pixel centres at +0.5).
+        distortion: [4] the model's coefficients, or None (zeros).
+        model: ``"pinhole"`` or ``"fisheye"``.
     Returns:
-        uv: [N, 2] continuous pixel coordinates (NaN where ``z <= 0``: not in front).
+        uv: [N, 2] continuous pixel coordinates (NaN where the model does not project the
+            point: for a pinhole ``z <= 0``, not in front).
         z: [N] camera-frame z (forward) of each point.
         dist: [N] distance from the camera centre, i.e. the depth along the point's unit ray.
     """
     rel = np.asarray(points, np.float64) - c2w[:3, 3]  # [N, 3] world offsets from the centre
     cam = rel @ c2w[:3, :3]  # [N, 3] camera frame: R^T (p - t)
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv_z = np.where(z > 0, 1.0 / z, np.nan)
-    uv = np.stack([fx * cam[:, 0] * inv_z + cx, fy * cam[:, 1] * inv_z + cy], axis=-1)
-    return uv, z, np.linalg.norm(rel, axis=-1)
+    uv = pixels_from_camera_points(cam, fx, fy, cx, cy, distortion, model)  # [N, 2]
+    return uv, cam[:, 2], np.linalg.norm(rel, axis=-1)
 
 
 def _check_inputs(points: Any, cameras: Cameras, depth_maps: Sequence[np.ndarray], margin: float) -> np.ndarray:
@@ -179,14 +193,16 @@ def visible_from_cameras(
         todo = np.flatnonzero(~seen)  # only points no camera has seen yet
         if todo.size == 0:
             break
-        uv, z, dist = project_points(points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i])
+        uv, _, dist = project_points(
+            points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
+            cameras.distortion[i], str(cameras.model[i]),
+        )
         near = cameras.near[i] if np.isfinite(cameras.near[i]) else 0.0
         far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
         width, height = int(cameras.width[i]), int(cameras.height[i])
         with np.errstate(invalid="ignore"):
             in_view = (
-                (z > 0)
-                & (uv[:, 0] >= 0) & (uv[:, 0] < width)
+                (uv[:, 0] >= 0) & (uv[:, 0] < width)
                 & (uv[:, 1] >= 0) & (uv[:, 1] < height)
                 & (dist >= near) & (dist <= far)
             )  # [n_todo]
@@ -221,7 +237,7 @@ class CameraSurfaces:
     besides the voxel centres (:func:`camera_surfaces`; a few small arrays, picklable).
 
     Attributes:
-        cameras: n cameras (pinholes; distortion is ignored).
+        cameras: n cameras (their lens models are used: rays and projection agree).
         depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to its surface,
             ``inf`` where the ray meets none.
         front: n arrays [h_i, w_i]: :func:`min_depth_over_neighbours` of ``depth``.
@@ -260,10 +276,14 @@ def camera_surfaces(
     """
     occupancy = np.asarray(occupancy)
     codes = occupancy if occupancy.dtype == np.uint8 else uint8_from_unit(occupancy)  # quantised once
+    matter = codes > 0
+    leaps = leap_lengths(matter) if matter.any() else None  # the rays' leaps through the grid, once for every camera
     depth, voxels = [], []
     for i in range(len(cameras)):
         origins, directions = rays_from_cameras(cameras, i)  # [h w, 3] each, row-major pixels
-        hit, index = transmittance_crossings(origins, directions, codes, origin, voxel_size, cameras.near[i], cameras.far[i])
+        hit, index = transmittance_crossings(
+            origins, directions, codes, origin, voxel_size, cameras.near[i], cameras.far[i], leaps=leaps
+        )
         if occluder_depth is not None:
             outside = np.asarray(occluder_depth[i], np.float64).reshape(-1)
             occluded = outside < hit  # the pixel's surface lies outside the grid
@@ -340,7 +360,7 @@ def observed_voxels(
         occupancy: [nx, ny, nz] per-voxel opacity in [0, 1], its uint8 codes, or bool (opaque voxels).
         origin: [3] world centre of voxel [0, 0, 0].
         voxel_size: voxel edge, world units.
-        cameras: n cameras (pinholes; distortion is ignored).
+        cameras: n cameras (their lens models are used: rays and projection agree).
         occluder_depth: optional n depth maps [h_i, w_i] of surfaces the grid does not hold (e.g.
             outside its box); each pixel's surface is the nearer of the two.
         chunk: voxels per block edge (bounds the memory).

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -50,6 +51,7 @@ __all__ = [
     "esdf_group_attributes",
     "esdf_array_attributes",
     "write_esdf",
+    "StoredEsdf",
     "stored_esdf",
 ]
 
@@ -118,23 +120,45 @@ def write_esdf(group: Any, voxel_size: float) -> None:
         target[block] = esdf[block]
 
 
-def stored_esdf(group: Any, values: np.ndarray, label: np.ndarray) -> dict[str, np.ndarray]:
-    """The ESDF a map read from ``group`` starts with, from the group's ``esdf`` array.
+@dataclass(frozen=True)
+class StoredEsdf:
+    """The ``esdf`` array of a map's store, read when the map's ESDF is first asked for
+    (:meth:`OccupancyMap.esdf`): loading a map reads only what every query needs.
 
-    Args:
-        group: the map's zarr group (its ``esdf`` array's attribute ``unknown`` names the rule).
-        values: [nx, ny, nz] float32, the array's values.
-        label: [nx, ny, nz] int16, the map's labels.
-    Returns:
-        {rule: read-only values}, checked against ``label`` (:func:`check_esdf`); {} when the rule
-        is not one this version knows (the ESDF is then computed on demand).
-    Raises:
-        InputError (field ``esdf``): values that do not match ``label``.
+    Attributes:
+        path: the map's group folder (the array is its ``esdf``).
+        rule: the array's ``unknown`` attribute, the rule it was computed with.
     """
+
+    path: Path
+    rule: str
+
+    def read(self, label: np.ndarray) -> np.ndarray | None:
+        """The array's values checked against the map's ``label`` [nx, ny, nz] (:func:`check_esdf`),
+        read-only; None when the store no longer holds the array (the ESDF, derived data, is then
+        computed from ``label``).
+
+        Raises:
+            InputError (field ``esdf``, naming the path): values that do not match ``label``.
+        """
+        import zarr
+
+        try:
+            values = np.asarray(zarr.open_group(str(self.path), mode="r")[ESDF_ARRAY][...])
+        except Exception:  # noqa: BLE001 - moved or deleted since the map was read: zarr raises several types
+            return None
+        try:
+            return check_esdf(values, label, self.rule)
+        except InputError as exc:
+            raise InputError(exc.problem, path=self.path, field=exc.field) from None
+
+
+def stored_esdf(group: Any, path: Path) -> StoredEsdf | None:
+    """The ESDF a map read from ``group`` (at ``path``) starts with: its ``esdf`` array, to read
+    on first use; None when the array's rule (attribute ``unknown``) is not one this version knows
+    (the ESDF is then computed on demand)."""
     rule = group[ESDF_ARRAY].attrs.get("unknown")
-    if rule not in UNKNOWN_AS:
-        return {}
-    return {rule: check_esdf(values, label, rule)}
+    return StoredEsdf(Path(path), rule) if rule in UNKNOWN_AS else None
 
 
 def check_target(path: Any, zarr_format: Any, chunks: Any, overwrite: bool) -> tuple[int, tuple[int, int, int], Path]:

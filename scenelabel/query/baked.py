@@ -34,7 +34,6 @@ from scenelabel.query.answers import (
     PointQuery,
     RayQuery,
     checked_array,
-    inside_bounds,
     labels_from_answers,
     ray_contract,
     ray_query_inputs,
@@ -342,12 +341,12 @@ class BakedField:
         Raises:
             InputError: ``path`` is not a saved BakedField, or one of another format version.
         """
+        path = Path(path).expanduser()
         import zarr
 
-        path = Path(path).expanduser()
         try:
             group = zarr.open_group(str(path), mode="r")
-        except (FileNotFoundError, ValueError, zarr.errors.GroupNotFoundError) as err:
+        except (FileNotFoundError, ValueError) as err:  # zarr's GroupNotFoundError is both
             raise InputError(f"not a zarr group ({type(err).__name__})", path=path) from None
         attrs = dict(group.attrs.asdict())
         if attrs.get("format") != BAKED_FORMAT:
@@ -381,17 +380,18 @@ class BakedField:
         xyz = np.ascontiguousarray(checked_array(xyz, "xyz", 3))
         n, n_classes = len(xyz), len(self.class_ids)
         density, probs = np.empty(n), np.empty((n, n_classes))
-        frame, kernel = _lattice_frame(self.corner, self.voxel_size), _kernels().points_kernel
+        inside, top = np.empty(n, bool), np.empty(n, np.int64)  # in the bounds; argmax of probs
+        frame, aabb, kernel = _lattice_frame(self.corner, self.voxel_size), np.ascontiguousarray(self.aabb), _kernels().points_kernel
 
         def run(rows: slice) -> None:
-            kernel(self.density, self.class_values, frame, xyz[rows], self.scores, density[rows], probs[rows])
+            kernel(
+                self.density, self.class_values, frame, aabb, xyz[rows], self.scores,
+                density[rows], probs[rows], inside[rows], top[rows],
+            )
 
         _kernels().in_threads(run, n)
-        inside = inside_bounds(xyz, self.aabb)
-        density[~inside] = 0.0
-        probs[~inside] = 0.0
         occupancy = -np.expm1(-density * self.occupancy_delta)
-        label = labels_from_answers(self.class_ids[probs.argmax(-1)], occupancy, inside)
+        label = labels_from_answers(self.class_ids[top], occupancy, inside)
         return PointQuery(density, occupancy, probs, self.class_ids.copy(), label)
 
     def query_rays(self, origins, directions, near=None, far=None) -> RayQuery:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from scenelabel.config import RANDOM_BACKGROUND, config_from_dict
+from scenelabel.config import config_from_dict, render_background
 from scenelabel.data.scene import ClassMap
 from scenelabel.errors import InputError
 from scenelabel.fields.checkpoint import Checkpoint, load_checkpoint
@@ -210,9 +210,7 @@ class SemanticField:
         hierarchical sampling renders as in training (coarse, then fine samples; no early stop)."""
         sampling = self.config.sampling
         chunk = sampling.chunk_rays
-        background = self.config.train.background
-        if background == RANDOM_BACKGROUND:  # trained against random colours: render on white
-            background = (1.0, 1.0, 1.0)
+        background = render_background(self.config.train.background)  # "random" training: white
         bg = None if background is None else self._tensor(np.asarray(background))
         options = CompositeOptions(bg, with_rgb)
         outs: dict[str, list] = {"rgb": [], "depth": [], "opacity": [], "probs": [], "entered": []}
@@ -279,8 +277,9 @@ class SemanticField:
         distortion=None,
         near: float | None = None,
         far: float | None = None,
+        camera_model: str = "pinhole",
     ) -> RenderResult:
-        """Render one pinhole camera.
+        """Render one camera (a pinhole unless ``camera_model`` says otherwise).
 
         Args:
             c2w: (4, 4) or (3, 4) camera-to-world; OpenCV axes (x right, y down, z forward), or
@@ -290,9 +289,11 @@ class SemanticField:
             cx, cy: principal point (default: the image centre); pixel centres at +0.5.
             smooth_sigma: Gaussian smoothing (pixels) of the class-probability images before the
                 argmax (the seed paper's post-processing); None for none.
-            distortion: optional OpenCV (k1, k2, p1, p2).
+            distortion: optional lens coefficients: a pinhole's OpenCV (k1, k2, p1, p2), a
+                fisheye's (k1, k2, k3, k4) (docs/conventions.md, "Camera models").
             near, far: optional limits of every ray, distances along its unit direction (world
                 units), as a capture's per-view depth range (LLFF's bounds); None: the scene bounds.
+            camera_model: ``"pinhole"`` or ``"fisheye"`` (OpenCV's equidistant model).
         Returns:
             RenderResult.
         """
@@ -308,7 +309,7 @@ class SemanticField:
         fx, fy = (focal, focal) if np.isscalar(focal) else focal
         cx = width / 2.0 if cx is None else cx
         cy = height / 2.0 if cy is None else cy
-        dirs_cam = camera_directions_from_pixels(pixel_grid(width, height), fx, fy, cx, cy, distortion)
+        dirs_cam = camera_directions_from_pixels(pixel_grid(width, height), fx, fy, cx, cy, distortion, camera_model)
         directions = dirs_cam @ c2w[:3, :3].T
         origins = np.broadcast_to(c2w[:3, 3], directions.shape)
         near_n, far_n = (None if v is None else np.full(len(directions), float(v) * self.frame.scale) for v in (near, far))
@@ -339,6 +340,7 @@ class SemanticField:
             cam.cy[0],
             smooth_sigma=smooth_sigma,
             distortion=cam.distortion[0],
+            camera_model=str(cam.model[0]),
             near=near if np.isfinite(near) else None,
             far=far if np.isfinite(far) else None,
         )

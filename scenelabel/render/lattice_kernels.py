@@ -4,35 +4,49 @@ allocation inside the loops. Imported on first use (importing numba takes a whil
 
 A lattice is read through ``frame`` = (corner x, y, z, 1 / spacing): vertex ``[i, j, k]`` sits at
 ``corner + spacing * (i, j, k)``. Arithmetic is float64 whatever the lattice's dtype.
+
+Points land anywhere in a lattice of megabytes, so reading their cells' corners waits on memory:
+:func:`points_kernel` asks for the corners of the point PREFETCH_AHEAD rows on while it blends the
+current one (:func:`prefetch`, LLVM's prefetch intrinsic), which keeps several reads in flight.
 """
 
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
-from typing import Callable
 
 import numpy as np
+from llvmlite import ir
 from numba import njit
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
+from scenelabel.maps.raycast_kernels import MIN_ROWS_PER_THREAD, in_threads  # noqa: F401 (the split over threads, shared)
 from scenelabel.render.constants import OPACITY_EPS
 
-MIN_ROWS_PER_THREAD = 4096
-"""Kernels are split over threads (one per core) in chunks of at least this many points or rays."""
+PREFETCH_AHEAD = 16
+""":func:`points_kernel` prefetches the lattice corners of the point this many rows ahead."""
 
 
-def in_threads(run: Callable[[slice], None], n: int) -> None:
-    """run(rows) over [0, n) split into one contiguous slice per core (each at least
-    MIN_ROWS_PER_THREAD rows); the kernels release the GIL, so the slices run in parallel."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    workers = max(1, min(cores, n // MIN_ROWS_PER_THREAD))
-    if workers == 1:
-        run(slice(0, n))
-        return
-    bounds = np.linspace(0, n, workers + 1).astype(int)
-    with ThreadPoolExecutor(workers) as pool:
-        list(pool.map(run, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
+@intrinsic
+def prefetch(typingctx, array, flat_index):  # pragma: no cover - compiled
+    """Hint the CPU to fetch the cache line of ``array[flat_index]`` (a C-contiguous 1-D array; no
+    bounds check, none needed: a prefetch never faults) for reading; nothing else happens."""
+
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        data = context.make_array(array_type)(context, builder, args[0])
+        pointer = cgutils.get_item_pointer(context, builder, array_type, data, [args[1]], wraparound=False)
+        byte_pointer = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        function = builder.module.declare_intrinsic(
+            "llvm.prefetch", [byte_pointer], ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
+        )
+        # read (0), high temporal locality (3), data cache (1)
+        flags = [ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)]
+        builder.call(function, [builder.bitcast(pointer, byte_pointer), *flags])
+        return context.get_dummy_value()
+
+    return types.void(array, flat_index), codegen
 
 
 @njit(cache=True, nogil=True)
@@ -135,23 +149,86 @@ def scatter_kernel(grad_out, frame, points, grad):  # pragma: no cover - compile
 
 
 @njit(cache=True, nogil=True)
-def points_kernel(density, class_values, frame, points, scores, density_out, probs):  # pragma: no cover - compiled
-    """density_out [N] (trilinear, clamped at 0) and probs [N, C] at world points [N, 3]: the
-    trilinear class values normalised (probabilities, any positive scale), or their softmax with
-    ``scores`` (logits); 0 and the uniform law outside the lattice."""
+def first_argmax(values):  # pragma: no cover - compiled
+    """The index of the largest value, the first of equal ones (a NaN counts as the largest), as
+    numpy's argmax."""
+    top, best = 0, values[0]
+    if best != best:
+        return 0
+    for c in range(1, values.shape[0]):
+        v = values[c]
+        if v != v:
+            return c
+        if v > best:
+            top, best = c, v
+    return top
+
+
+@njit(cache=True, nogil=True)
+def points_kernel(
+    density, class_values, frame, aabb, points, scores, density_out, probs, inside, top
+):  # pragma: no cover - compiled
+    """Per world point [N, 3]: inside[n], the point lies in the box aabb [2, 3] (faces included);
+    density_out[n], the trilinear density clamped at 0; probs[n, C], the trilinear class values
+    normalised (probabilities, any positive scale), or their softmax with ``scores`` (logits);
+    top[n], the first argmax of probs[n]. 0 and zero probs outside aabb; 0 and the uniform law
+    inside it but outside the lattice. The 8 corners are read through flat offsets (the lattices
+    are C-contiguous), blended in the order of :func:`blend_scalar` / :func:`blend_channels`; the
+    corners of point n + PREFETCH_AHEAD are prefetched meanwhile."""
     ijk, w = np.empty(3, np.int64), np.empty(8)
     n_classes = class_values.shape[3]
+    nx, ny, nz = density.shape
+    flat_density, flat_classes = density.reshape(-1), class_values.reshape(-1)
     for n in range(points.shape[0]):
-        if cell_weights(density.shape, frame, points[n, 0], points[n, 1], points[n, 2], ijk, w):
-            density_out[n] = max(blend_scalar(density, ijk, w), 0.0)
-            blend_channels(class_values, ijk, w, probs[n])
+        ahead = n + PREFETCH_AHEAD
+        if ahead < points.shape[0]:  # the corners of a later point, fetched while this one is blended
+            x = (points[ahead, 0] - frame[0]) * frame[3]
+            y = (points[ahead, 1] - frame[1]) * frame[3]
+            z = (points[ahead, 2] - frame[2]) * frame[3]
+            if 0.0 <= x <= nx - 1 and 0.0 <= y <= ny - 1 and 0.0 <= z <= nz - 1:
+                u0 = (min(int(x), nx - 2) * ny + min(int(y), ny - 2)) * nz + min(int(z), nz - 2)
+                for u in (u0, u0 + nz, u0 + ny * nz, u0 + ny * nz + nz):  # the 4 runs of 2 vertices along z
+                    prefetch(flat_density, u)
+                    prefetch(flat_classes, u * n_classes)
+                    prefetch(flat_classes, (u + 2) * n_classes - 1)
+        px, py, pz = points[n, 0], points[n, 1], points[n, 2]
+        inside[n] = aabb[0, 0] <= px <= aabb[1, 0] and aabb[0, 1] <= py <= aabb[1, 1] and aabb[0, 2] <= pz <= aabb[1, 2]
+        if not inside[n]:
+            density_out[n] = 0.0
+            probs[n, :] = 0.0
+        elif cell_weights(density.shape, frame, px, py, pz, ijk, w):
+            v0 = (ijk[0] * ny + ijk[1]) * nz + ijk[2]  # corner order: bit 2 +x, bit 1 +y, bit 0 +z
+            v2 = v0 + nz
+            v4 = v0 + ny * nz
+            v6 = v4 + nz
+            density_out[n] = max(
+                w[0] * flat_density[v0] + w[1] * flat_density[v0 + 1] + w[2] * flat_density[v2]
+                + w[3] * flat_density[v2 + 1] + w[4] * flat_density[v4] + w[5] * flat_density[v4 + 1]
+                + w[6] * flat_density[v6] + w[7] * flat_density[v6 + 1],
+                0.0,
+            )
+            c0, c1, c2, c3 = v0 * n_classes, (v0 + 1) * n_classes, v2 * n_classes, (v2 + 1) * n_classes
+            c4, c5, c6, c7 = v4 * n_classes, (v4 + 1) * n_classes, v6 * n_classes, (v6 + 1) * n_classes
+            total = 0.0  # their sum, as normalise_into adds them
+            for c in range(n_classes):
+                value = (
+                    w[0] * flat_classes[c0 + c] + w[1] * flat_classes[c1 + c] + w[2] * flat_classes[c2 + c]
+                    + w[3] * flat_classes[c3 + c] + w[4] * flat_classes[c4 + c] + w[5] * flat_classes[c5 + c]
+                    + w[6] * flat_classes[c6 + c] + w[7] * flat_classes[c7 + c]
+                )
+                probs[n, c] = value
+                total += value
             if scores:
                 softmax_into(probs[n], probs[n])
-            else:  # a convex blend of probability vectors: normalising undoes the lattice's rounding
-                normalise_into(probs[n], probs[n])
+            elif total > 0.0:  # a convex blend of probability vectors: normalising undoes the lattice's rounding
+                for c in range(n_classes):  # (normalise_into, with the sum taken in the blend: faster)
+                    probs[n, c] = probs[n, c] / total
+            else:
+                probs[n, :] = 1.0 / n_classes
         else:
             density_out[n] = 0.0
             probs[n, :] = 1.0 / n_classes
+        top[n] = first_argmax(probs[n])
 
 
 @njit(cache=True, nogil=True)

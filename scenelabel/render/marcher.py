@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import torch
 
 from scenelabel.render.constants import EARLY_STOP_TRANS
-
 from scenelabel.render.sampling import (
     importance_sample,
     march,
@@ -27,6 +26,7 @@ from scenelabel.render.volume import (
     depth_at_transmittance,
     depth_from_weights,
     distortion_from_weights,
+    weight_before,
     weights_from_density,
 )
 
@@ -73,6 +73,9 @@ class CompositeOptions:
     with_rgb: bool = True  # evaluate colour (False: density and classes only, cheaper)
     # composite classes with detached weights, so a loss on the class probabilities does not move σ
     detach_semantic_weights: bool = False
+    # [n_rays] distances before which each ray should be empty (a depth sensor saw free space
+    # there; NaN: no such knowledge): the render reports the weight in front of them (``front_weight``)
+    free_until: torch.Tensor | None = None
 
 
 NO_OPTIONS = CompositeOptions()
@@ -89,6 +92,7 @@ class RayBundleOutput:
     n_evaluated: int  # samples the field evaluated
     distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
     t_opaque: torch.Tensor  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
+    front_weight: torch.Tensor | None = None  # [n_rays] Σ w_i over samples ending before options.free_until
 
 
 def ray_intervals(
@@ -327,4 +331,5 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
         n_evaluated=int(rows.shape[0]),
         distortion=distortion_from_weights(weights, s_starts, s_ends),
         t_opaque=depth_at_transmittance(packed_sigmas.detach(), starts, ends, OPAQUE_TRANS),
+        front_weight=None if options.free_until is None else weight_before(weights, ends, options.free_until),
     )

@@ -49,6 +49,7 @@ __all__ = [
     "class_log_probs_from_weights",
     "class_log_probs_from_scores",
     "distortion_from_weights",
+    "weight_before",
 ]
 
 SIGMA_MAX = 1e30
@@ -309,3 +310,20 @@ def distortion_from_weights(weights: torch.Tensor, s_starts: torch.Tensor, s_end
     between = 2.0 * (weights * (mids * exclusive_cumsum(weights) - exclusive_cumsum(weighted))).sum(-1)
     within = (weights**2 * (s_ends - s_starts)).sum(-1) / 3.0
     return between + within
+
+
+def weight_before(weights: torch.Tensor, t_ends: torch.Tensor, t_free: torch.Tensor) -> torch.Tensor:
+    """How much of each ray terminates before ``t_free``: Σ_i w_i over the samples that end at or
+    before it (the line-of-sight idea of Urban Radiance Fields, Rematas et al. 2022, eq. 8: a depth
+    sensor saw empty space up to there, so no weight belongs in front of it).
+
+    Args:
+        weights: [n_rays, n_samples] (eq. 3's w_i).
+        t_ends: [n_rays, n_samples] sample interval ends.
+        t_free: [n_rays] the free-space limit; NaN (no measurement) gives 0.
+    Returns:
+        [n_rays] in [0, 1].
+    """
+    front = t_ends <= t_free[:, None]  # NaN compares False: no sample counts
+    return (weights * front.to(weights.dtype)).sum(-1)
+

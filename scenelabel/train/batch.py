@@ -39,6 +39,7 @@ from typing import Any
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
 from scenelabel.config import BuildConfig, config_from_dict, config_to_dict, preset
+from scenelabel.data.video import is_video, video_scene_dir
 from scenelabel.errors import InputError, TrainingInterrupted
 from scenelabel.train.pipeline import build
 
@@ -355,12 +356,15 @@ def build_scene(scene: str | Path, out_dir: str | Path, config: dict, device: st
 
 def out_dirs_for(scenes: Iterable[str | Path], out_root: str | Path | None = None) -> list[Path]:
     """Each scene's output folder: ``<out_root>/<scene folder name>``, or ``<scene>/scenelabel``
-    when ``out_root`` is None; a name already taken gets ``_2``, ``_3``, ... appended."""
+    when ``out_root`` is None (a video ``clip.mp4``: its scene folder ``clip/``); a name already taken
+    gets ``_2``, ``_3``, ... appended."""
     root = None if out_root is None else Path(out_root).absolute()
     taken = set() if root is None else {root / SUMMARY_MD, root / SUMMARY_JSON}
     dirs = []
     for scene in scenes:
         scene = Path(scene).absolute()
+        if is_video(scene):  # a video's scene folder: clip/ beside clip.mp4
+            scene = video_scene_dir(scene)
         base = scene / "scenelabel" if root is None else root / (scene.resolve().name or "scene")
         candidate, n = base, 1
         while candidate in taken:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 __all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights", "total_variation",
-           "total_variation_grad", "solid_interior_loss"]
+           "total_variation_grad", "solid_interior_loss", "depth_loss", "free_space_loss", "composite_target"]
 
 SOLID_TAU = 1.4
 """The solid-interior term asks for this optical depth per marching step inside surfaces: one step
@@ -34,6 +34,71 @@ def solid_interior_loss(sigmas: torch.Tensor, step: float, tau: float = SOLID_TA
         return sigmas.new_zeros(())
     target = torch.log(torch.as_tensor(tau / step, dtype=sigmas.dtype, device=sigmas.device))
     return torch.relu(target - torch.log(sigmas + SOLID_SIGMA_EPS)).mean()
+
+
+DEPTH_HUBER = 0.02
+"""Relative depth error at which :func:`depth_loss` turns from quadratic to linear: sensor noise
+(1-2 % for a phone's LiDAR) is fitted in the quadratic part, and a wrong measurement (a flying pixel,
+a reflection) pulls no harder than any other error beyond 2 %."""
+
+
+def depth_loss(termination: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Huber loss (threshold DEPTH_HUBER) on the relative error of each ray's expected termination
+    distance, ``(termination - target) / target``, over the rays with a measurement.
+
+    ``termination`` should be Σ_i w_i t_i + (1 - Σ_i w_i) t_far (the expected depth with the
+    transmittance left at the end of the ray placed at its far end; DS-NeRF, Deng et al. 2022, and
+    Urban Radiance Fields use the expected termination the same way): a ray left partly transparent
+    in front of a measured surface then terminates too far, so the loss also asks for an opaque
+    surface, not fog at the right mean distance.
+
+    Args:
+        termination: [n_rays] expected termination distance.
+        target: [n_rays] measured distance along the ray (same unit); NaN = no measurement.
+    Returns:
+        scalar; 0 when no ray has a measurement.
+    """
+    valid = torch.isfinite(target) & (target > 0)
+    if not bool(valid.any()):
+        return termination.sum() * 0.0  # zero, with a (zero) gradient
+    relative = (termination[valid] - target[valid]) / target[valid]
+    return torch.nn.functional.smooth_l1_loss(relative, torch.zeros_like(relative), beta=DEPTH_HUBER)
+
+
+def free_space_loss(front_weight: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean weight in front of the measured surfaces (:func:`scenelabel.render.volume.weight_before`),
+    over the rays with a measurement: the fog a photometric loss leaves in free space.
+
+    Args:
+        front_weight: [n_rays] in [0, 1].
+        target: [n_rays] measured distances; NaN = no measurement (those rays do not count).
+    Returns:
+        scalar; 0 when no ray has a measurement.
+    """
+    valid = torch.isfinite(target) & (target > 0)
+    if not bool(valid.any()):
+        return front_weight.sum() * 0.0  # zero, with a (zero) gradient
+    return front_weight[valid].mean()
+
+
+def composite_target(rgb, alpha, background):
+    """The colour a pixel with transparency stands for: ``rgb * alpha + background * (1 - alpha)``,
+    composited on the same background the render composites on (Scene.image_alphas, train.background).
+
+    Torch tensors or numpy arrays alike (one kind per call).
+
+    Args:
+        rgb: [..., 3] the stored colour.
+        alpha: [...] in [0, 1], or None (an opaque pixel: ``rgb`` is returned unchanged).
+        background: [3] or [..., 3] (a random colour per ray), a scalar, or None (black).
+    Returns:
+        [..., 3].
+    """
+    if alpha is None:
+        return rgb
+    a = alpha[..., None]
+    out = rgb * a
+    return out if background is None else out + background * (1.0 - a)
 
 
 def photometric_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

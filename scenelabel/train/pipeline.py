@@ -14,7 +14,9 @@ Orchestration on top of io, train, semantic_field and maps. Writes into the outp
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import os
 import random
 import sys
@@ -28,26 +30,29 @@ import torch
 
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
-from scenelabel.config import BuildConfig, config_from_dict, config_to_dict, preset
+from scenelabel.config import BuildConfig, config_from_dict, config_to_dict, preset, render_background
 from scenelabel.data.io import load_scene
 from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_to_dict
+from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
+from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
-from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim
+from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim, surface_points_from_depth
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.render.sampling import DensityGrid, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
+from scenelabel.train.losses import composite_target
 from scenelabel.train.trainer import Trainer, rays_for_views
 from scenelabel.viz.pictures import evaluation_panels, view_title, write_panels
 
-__all__ = ["build", "BuildResult", "split_views", "default_voxel_size", "resume_config"]
+__all__ = ["build", "BuildResult", "split_views", "choose_views", "default_voxel_size", "resume_config"]
 
 VOXEL_FOOTPRINT_PIXELS = 2.0
 """The default map voxel spans this many training pixels at the typical viewing distance."""
@@ -72,6 +77,30 @@ def split_views(n_views: int, holdout: int) -> tuple[list[int], list[int]]:
     if not train:
         raise InputError(f"holdout {holdout} leaves no training view among {n_views}")
     return train, test
+
+
+def choose_views(scene: Scene, holdout: int) -> tuple[list[int], list[int], str]:
+    """(train, test) view indices of a build and the rule that chose them (the checkpoint's ``split``).
+
+    The input's own splits (``scene.splits``, e.g. transforms_train / _val / _test.json) when it has
+    them: train on ``train``, hold out ``test``, or ``val`` when the test split is empty
+    (``holdout`` is not used); else every ``holdout``-th view (:func:`split_views`).
+
+    Raises InputError when no training view would remain, or fewer than 2 views in all.
+    """
+    if scene.splits is None:
+        train, test = split_views(len(scene), holdout)
+        if not holdout:
+            return train, test, "train.holdout = 0: none held out"
+        return train, test, f"train.holdout = {holdout}: views 0, {holdout}, {2 * holdout}, ... held out"
+    if len(scene) < 2:
+        raise InputError(f"a scene needs at least 2 views, got {len(scene)}")
+    train = list(scene.splits.get("train", []))
+    if not train:
+        raise InputError("the input's train split is empty: no training view")
+    held_out = "test" if scene.splits.get("test") else "val"
+    test = list(scene.splits.get(held_out, []))
+    return train, test, f"input files: train, {held_out} held out" if test else "input files: train, none held out"
 
 
 def default_voxel_size(scene: Scene, train: list[int], aabb: np.ndarray, finest_cell: float) -> float:
@@ -107,8 +136,12 @@ def _class_colors(scene: Scene) -> dict[int, list[int]]:
 
 def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: float | None, renders_dir: Path | None) -> dict:
     """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class, and
-    each view's render time."""
+    each view's render time. A ground-truth image with alpha (``scene.image_alphas``) is composited on the
+    colour the render composites on (:func:`scenelabel.config.render_background`: white after
+    "random" training)."""
     class_ids = field.class_ids
+    background = render_background(field.config.train.background)
+    background = None if background is None else np.asarray(background, np.float32)
     ignore = scene.ignore_index
     conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
     conf_smooth = np.zeros_like(conf)
@@ -121,7 +154,7 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         # the smoothing is post-processing of the rendered class probabilities: no second render
         smooth_ids = field.class_map.ids_from_channels(smooth_class_probs(out.probs, smooth_sigma).argmax(-1))
         smoothed_label = np.where(out.label >= 0, smooth_ids, out.label)
-        gt = scene.images[i]
+        gt = composite_target(scene.images[i], None if scene.image_alphas is None else scene.image_alphas[i], background)
         view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
         label = scene.labels[i]
         if label is not None:
@@ -303,6 +336,61 @@ def observed_points(
     return frame.to_world((o[hit] + depth[hit, None] * d[hit]).cpu().numpy())
 
 
+SCALE_TOLERANCE = 0.03
+"""Poses whose scale, measured against the sensor depth (:func:`scaled_to_sensor_depth`), is within
+this fraction of the depth's are taken as metric already (a phone's ARKit poses): left unchanged."""
+
+
+def scaled_to_sensor_depth(scene: Scene, progress: bool = False) -> Scene:
+    """The scene in the sensor depth's unit (metres): camera centres, near/far, scoring depths and box
+    multiplied by :func:`scenelabel.geometry.depth_scale.scale_from_depth` (the sensor depths stay),
+    recorded as ``info["world_scale"]`` like ``--scale`` and ``info["scale_source"]``. Unchanged when
+    the poses already agree with the depth (SCALE_TOLERANCE) or the views cannot tell (cameras that
+    only rotate; a warning says so)."""
+    factor = scale_from_depth(scene.cameras, scene.sensor_depths)
+    if factor is None:
+        warnings.warn(
+            "the sensor depth cannot tell the poses' scale (too little camera motion or overlap): "
+            "the poses' unit is kept; give --scale if it is not metres",
+            UserWarning,
+            stacklevel=2,
+        )
+        return scene
+    if abs(math.log(factor)) <= math.log1p(SCALE_TOLERANCE):
+        return scene
+    if progress:
+        print(f"scale: the poses are {factor:.4g} x the sensor depth's unit: scaled to metres", file=sys.stderr)
+    scaled = scene.scaled(factor)
+    return dataclasses.replace(
+        scaled, sensor_depths=scene.sensor_depths, info={**scaled.info, "scale_source": "sensor depth"}
+    )
+
+
+SENSOR_POINTS = 200_000
+"""At most this many back-projected sensor-depth pixels bound a scene (:func:`sensor_depth_points`)."""
+
+
+def sensor_depth_points(scene: Scene, train_idx: list[int], seed: int = 0) -> np.ndarray | None:
+    """The training views' sensor depths back-projected (at most SENSOR_POINTS, a seeded random
+    subset): the geometry the cameras observe, measured, so no coarse fit is needed for the bounds.
+
+    Returns:
+        [k, 3] world points, or None when no training view has sensor depth.
+    """
+    if scene.sensor_depths is None or all(scene.sensor_depths[i] is None for i in train_idx):
+        return None
+    points = []
+    for i in train_idx:
+        depth = scene.sensor_depths[i]
+        if depth is not None:
+            origins, directions = rays_from_cameras(scene.cameras, i)
+            points.append(surface_points_from_depth(origins, directions, depth.reshape(-1)))
+    points = np.concatenate(points)
+    if len(points) > SENSOR_POINTS:
+        points = points[np.random.default_rng(seed).choice(len(points), SENSOR_POINTS, replace=False)]
+    return points
+
+
 def prepare_training(
     scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext(), progress: bool = False
 ) -> tuple[Trainer, dict, list[int]]:
@@ -315,13 +403,16 @@ def prepare_training(
     """
     _seed_everything(config.train.seed)
 
-    train_idx, test_idx = split_views(len(scene), config.train.holdout)
+    train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
     class_map = _class_map(scene, train_idx)
     points = None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
-        points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
-        _seed_everything(config.train.seed)  # the field starts as it would with given bounds
-    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points)
+        points = sensor_depth_points(scene, train_idx)
+        if points is None:
+            points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
+            _seed_everything(config.train.seed)  # the field starts as it would with given bounds
+    seen_by = "sensor depth" if scene.sensor_depths is not None else "observed geometry"
+    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if context.distributed:
         aabb = broadcast_array(aabb, device)
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
@@ -342,6 +433,7 @@ def prepare_training(
         "default_voxel_size": default_voxel_size(scene, train_idx, aabb, finest),
         "train_views": [scene.names[i] for i in train_idx],
         "test_views": [scene.names[i] for i in test_idx],
+        "split": split_rule,
         TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
@@ -383,8 +475,8 @@ def build(
     """Train a semantic field on a scene folder and write checkpoint, metrics, renders and map.
 
     Args:
-        scene_path: a scene folder (see docs/formats.md) or an already loaded Scene.
-        out_dir: output folder (default: <scene>/scenelabel).
+        scene_path: a scene folder (see docs/formats.md), a video file, or an already loaded Scene.
+        out_dir: output folder (default: <scene>/scenelabel; for ``clip.mp4``, ``clip/scenelabel``).
         config: the resolved config (default: the ``fast`` preset).
         progress: show a progress bar.
         device: 'cpu', 'cuda' or None (CUDA when available).
@@ -400,9 +492,15 @@ def build(
         only the training figures).
     """
     config = config or preset("fast")
-    scene = scene_path if isinstance(scene_path, Scene) else load_scene(scene_path, config.data.downscale)
+    if isinstance(scene_path, Scene):
+        scene = scene_path
+    else:  # a video input chooses its frames by config.data.video_* (scenelabel.data.video)
+        d = config.data
+        scene = load_scene(scene_path, d.downscale, d.video_frames_per_second, d.video_max_frames, progress=progress)
     if config.data.scale is not None:
         scene = scene.scaled(config.data.scale)
+    elif scene.sensor_depths is not None:
+        scene = scaled_to_sensor_depth(scene, progress)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)

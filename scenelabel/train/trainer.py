@@ -33,6 +33,9 @@ from scenelabel.render.sampling import DensityGrid
 from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from scenelabel.train.losses import (
     class_balance_weights,
+    composite_target,
+    depth_loss,
+    free_space_loss,
     photometric_mse,
     semantic_cross_entropy,
     semantic_focal_loss,
@@ -66,6 +69,18 @@ GRID_ALL_CELLS_UPDATES = 4
 a random quarter (each full refresh of a 64³ grid costs as much as several training steps)."""
 
 
+FREE_MARGIN = 0.05
+"""The free-space term (:func:`~scenelabel.train.losses.free_space_loss`) counts weight in front of
+``depth * (1 - FREE_MARGIN) - step``: measurements off by a few per cent (a phone's LiDAR is 1-2 %)
+and one marching step of quadrature do not pull a true surface forward."""
+
+
+def free_space_limit(target: torch.Tensor, step: float) -> torch.Tensor:
+    """[n_rays] distances before which a ray with measured depth ``target`` [n_rays] should be empty
+    (NaN where there is no measurement)."""
+    return target * (1.0 - FREE_MARGIN) - step
+
+
 @dataclass
 class RayData:
     """All rays of some views, in the normalised frame (float32 tensors)."""
@@ -76,6 +91,8 @@ class RayData:
     t_max: torch.Tensor  # [N]
     rgb: torch.Tensor  # [N, 3]
     channels: torch.Tensor  # [N] int64 class channel, -1 = no label
+    depth: torch.Tensor | None = None  # [N] measured distance along the ray (sensor depth), NaN = none; None: no view has one
+    alpha: torch.Tensor | None = None  # [N] pixel alpha in [0, 1] (Scene.image_alphas; rgb is composited on the background); None: opaque
 
     def __len__(self) -> int:
         return self.origins.shape[0]
@@ -84,11 +101,18 @@ class RayData:
 def rays_for_views(
     scene: Scene, indices: list[int], frame: SceneFrame, class_map: ClassMap, aabb_n: torch.Tensor
 ) -> RayData:
-    """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far."""
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch")}
+    """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far.
+
+    Pixels a view's mask excludes (``scene.masks``) give no ray; sensor depths
+    (``scene.sensor_depths``) become ``depth`` in the normalised frame.
+    """
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha")}
+    sensor = scene.sensor_depths
     for i in indices:
         origins, directions = rays_from_cameras(scene.cameras, i)
         n = len(origins)
+        depth = None if sensor is None else sensor[i]
+        parts["depth"].append(np.full(n, np.nan) if depth is None else depth.reshape(-1) * frame.scale)
         parts["o"].append(frame.to_normalised(origins))
         parts["d"].append(directions)
         near, far = scene.cameras.near[i], scene.cameras.far[i]
@@ -97,7 +121,15 @@ def rays_for_views(
         parts["rgb"].append(scene.images[i].reshape(-1, 3))
         label = scene.labels[i]
         parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
+        alpha = None if scene.image_alphas is None else scene.image_alphas[i]
+        parts["alpha"].append(np.ones(n, np.float32) if alpha is None else alpha.reshape(-1))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
+    if scene.masks is not None:  # a masked-out pixel gives no training ray
+        keep = np.concatenate([
+            np.ones(len(o), bool) if scene.masks[i] is None else scene.masks[i].reshape(-1)
+            for i, o in zip(indices, parts["o"])
+        ])
+        cat = {k: v[keep] for k, v in cat.items()}
     o = torch.as_tensor(cat["o"], dtype=torch.float32)
     d = torch.as_tensor(cat["d"], dtype=torch.float32)
     t_min, t_max = ray_intervals(
@@ -110,6 +142,8 @@ def rays_for_views(
         t_max=t_max,
         rgb=torch.as_tensor(cat["rgb"], dtype=torch.float32),
         channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
+        depth=None if sensor is None else torch.as_tensor(cat["depth"], dtype=torch.float32),
+        alpha=None if scene.image_alphas is None else torch.as_tensor(cat["alpha"], dtype=torch.float32),
     )
 
 
@@ -209,7 +243,7 @@ class Trainer:
         self.device = device
         self.dist = dist
         tc, sc = config.train, config.sampling
-        self.rays = RayData(**{k: v.to(device) for k, v in rays.__dict__.items()})
+        self.rays = RayData(**{k: None if v is None else v.to(device) for k, v in rays.__dict__.items()})
         # Only rays that cross the box can be learnt from.
         self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
         if len(self.ray_pool) == 0:
@@ -248,9 +282,19 @@ class Trainer:
         )
         if tc.tv_weight > 0 and config.field.encoding != "dense":
             raise ConfigError(f"train.tv_weight regularises a dense grid; field.encoding is {config.field.encoding!r}")
+        # with sensor depth the surfaces sit where they were measured, so the interior behind them
+        # is filled at least at train.depth_solid_weight (without depth: train.solid_weight alone)
+        with_depth = self.rays.depth is not None and tc.depth_weight > 0
+        self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
         self.state = TrainState()
-        pool_rgb = self.rays.rgb[self.ray_pool]
+        # the colour variance of the targets (with alpha: composited; a random background adds its
+        # uniform variance 1/12 weighted by (1 - alpha)^2)
+        pool_alpha = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool]
+        random_background = tc.background == RANDOM_BACKGROUND
+        pool_rgb = composite_target(self.rays.rgb[self.ray_pool], pool_alpha, 0.5 if random_background else self.background)
         self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
+        if pool_alpha is not None and random_background:
+            self.mean_colour_mse += float(((1.0 - pool_alpha) ** 2).mean()) / 12.0
         self.mse_ema: float | None = None
 
     def _check_divergence(self, mse: float) -> None:
@@ -311,32 +355,41 @@ class Trainer:
         if self.coarse is not None:
             fine_jitter = torch.rand(self.batch_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
         solid_offsets = None
-        if tc.solid_weight > 0 and self.progress() >= SOLID_START:
+        solid_weight = self.solid_weight
+        if solid_weight > 0 and self.progress() >= SOLID_START:
             u = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
             solid_offsets = u * SOLID_DEPTH_STEPS * self.marching.step
         r = self.rays
         background = self.background
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
             background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
+        target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
+        free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step)
         out, coarse_out, solid_sigmas = self.render(
             r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, fine_jitter,
-            CompositeOptions(background, True, tc.detach_semantic_weights), solid_offsets=solid_offsets,
+            CompositeOptions(background, True, tc.detach_semantic_weights, free_until), solid_offsets=solid_offsets,
         )
-        mse = photometric_mse(out.rgb, r.rgb[idx])
+        target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
+        mse = photometric_mse(out.rgb, target_rgb)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
         distortion_weight = tc.distortion_weight if self.progress() >= tc.distortion_start else 0.0
         loss = mse + tc.semantic_weight * ce + distortion_weight * distortion
+        depth_term = mse.new_zeros(())
+        if target_depth is not None:  # expected termination (the transparent rest at the ray's far end)
+            termination = out.depth * out.opacity + (1.0 - out.opacity) * r.t_max[idx].clamp(min=0.0)
+            depth_term = depth_loss(termination, target_depth) + free_space_loss(out.front_weight, target_depth)
+            loss = loss + tc.depth_weight * depth_term
         if solid_sigmas is not None:
-            loss = loss + tc.solid_weight * solid_interior_loss(solid_sigmas, self.marching.step)
+            loss = loss + solid_weight * solid_interior_loss(solid_sigmas, self.marching.step)
         n_evaluated = out.n_evaluated
         if coarse_out is not None:  # NeRF: the coarse render is supervised alike (logged: the fine one)
-            loss = loss + photometric_mse(coarse_out.rgb, r.rgb[idx])
+            loss = loss + photometric_mse(coarse_out.rgb, target_rgb)
             loss = loss + tc.semantic_weight * self._semantic_loss(coarse_out.class_log_probs, r.channels[idx])
             n_evaluated += coarse_out.n_evaluated
         # the checks see the mean over ranks, so that all ranks stop together
-        mse_mean, ce_mean, distortion_mean, loss_mean = all_reduce_mean(
-            torch.stack([mse, ce, distortion.to(mse.dtype), loss]).detach()
+        mse_mean, ce_mean, distortion_mean, depth_mean, loss_mean = all_reduce_mean(
+            torch.stack([mse, ce, distortion.to(mse.dtype), depth_term.to(mse.dtype), loss]).detach()
         ).tolist()
         if not math.isfinite(loss_mean):
             raise TrainingError(
@@ -356,6 +409,7 @@ class Trainer:
             "mse": mse_mean,
             "ce": ce_mean,
             "distortion": distortion_mean,
+            "depth": depth_mean,
             "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
             "samples_per_ray": n_evaluated / self.batch_rays,
         }

@@ -26,8 +26,8 @@ Everything but the training curves is static. Segmentation images hold ``uint16`
 (rerun's class ids are unsigned): FREE, UNKNOWN and the masks' ``ignore_index`` become
 :data:`RERUN_FREE`, :data:`RERUN_UNKNOWN` and :data:`RERUN_IGNORED`, each annotated. Depth
 images hold rerun's z-depth (along the camera's optical axis, world units, ``meter=1``),
-converted from scenelabel's depth along each pixel's ray (lens distortion ignored); 0 where the
-render hit nothing. rerun is imported inside the functions.
+converted from scenelabel's depth along each pixel's ray (through the camera's lens model); 0 where
+the render hit nothing (or, for a fisheye, the pixel looks 90° or more off the axis). rerun is imported inside the functions.
 """
 
 from __future__ import annotations
@@ -115,12 +115,15 @@ def rerun_class_ids(label: np.ndarray, ignore_index: int | None = None) -> np.nd
     return out.astype(np.uint16)
 
 
-def z_depth(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+def z_depth(
+    depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, distortion=None, model: str = "pinhole"
+) -> np.ndarray:
     """Depth along each pixel's unit ray [H, W] -> depth along the optical axis (camera z) [H, W]
-    float32, for a pinhole (pixel centres at +0.5, docs/conventions.md)."""
+    float32 (pixel centres at +0.5, docs/conventions.md), through the camera's lens model (an ideal
+    pinhole by default). A fisheye pixel looking 90° or more off its axis has z <= 0."""
     depth = np.asarray(depth, np.float64)
     h, w = depth.shape
-    cos_axis = camera_directions_from_pixels(pixel_grid(w, h), fx, fy, cx, cy)[:, 2]  # unit rays' z: [H * W]
+    cos_axis = camera_directions_from_pixels(pixel_grid(w, h), fx, fy, cx, cy, distortion, model)[:, 2]  # [H * W]
     return (depth * cos_axis.reshape(h, w)).astype(np.float32)
 
 
@@ -277,6 +280,10 @@ def _log_camera(log: _Logger, base: str, cameras: Any, index: int, plane: float)
     cam = cameras[index]
     c2w = np.asarray(cam.c2w[0], np.float64)
     log.log(base, rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]))
+    # rerun's Pinhole has no lens distortion: a pinhole's k1 k2 p1 p2 are left out, and a fisheye
+    # (docs/conventions.md, "Camera models") is drawn as the pinhole with its fx, fy, cx, cy, exact
+    # at the image centre only (its frustum is drawn narrower than the lens sees, and beyond 90°
+    # not at all; the photo is shown as captured).
     k = np.array([[cam.fx[0], 0.0, cam.cx[0]], [0.0, cam.fy[0], cam.cy[0]], [0.0, 0.0, 1.0]])
     log.log(
         f"{base}/image",
@@ -289,7 +296,8 @@ def _log_render(log: _Logger, base: str, field: Any, cameras: Any, index: int) -
     rr = log.rr
     out = field.render_camera(cameras, index)
     cam = cameras[index]
-    depth = np.where(out.label >= 0, z_depth(out.depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0]), 0.0)
+    z = z_depth(out.depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
+    depth = np.where((out.label >= 0) & (z > 0), z, 0.0)  # a fisheye's pixels past 90° have no z-depth
     log.log(f"{base}/image/render/rgb", rr.Image(_uint8(out.rgb)))
     log.log(f"{base}/image/render/labels", rr.SegmentationImage(rerun_class_ids(out.label)))
     log.log(f"{base}/image/render/depth", rr.DepthImage(depth.astype(np.float32), meter=1.0))

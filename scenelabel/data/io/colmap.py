@@ -10,7 +10,8 @@ all text (``.txt``), read with ``pycolmap.Reconstruction`` (pycolmap >= 4). The 
   (``R^T``, ``-R^T t``). The world frame and unit are the model's own: no recentring or rescaling.
 - intrinsics: COLMAP's principal point uses scenelabel's pixel convention (the image's top-left
   corner is (0, 0), the centre of pixel (col, row) is (col + 0.5, row + 0.5)), so ``cx, cy`` are
-  taken as they are. Camera models, params in COLMAP order -> (fx, fy, cx, cy, [k1, k2, p1, p2]):
+  taken as they are. Camera models, params in COLMAP order -> (fx, fy, cx, cy, distortion) and
+  ``Cameras.model`` (docs/conventions.md, "Camera models"), pinholes first:
 
   ===============  ==========================================  ===============================
   SIMPLE_PINHOLE   f, cx, cy                                   fx = fy = f, no distortion
@@ -21,8 +22,16 @@ all text (``.txt``), read with ``pycolmap.Reconstruction`` (pycolmap >= 4). The 
   FULL_OPENCV      fx, fy, cx, cy, k1, k2, p1, p2, k3 .. k6    [k1, k2, p1, p2] if k3..k6 are 0
   ===============  ==========================================  ===============================
 
-  COLMAP's radial and radial-tangential models are OpenCV's (in normalised coordinates), so the
-  coefficients carry over unchanged. Every other model (fisheye, FOV, THIN_PRISM, ...) is an
+  and fisheyes (OpenCV's equidistant model, ``distortion = [k1, k2, k3, k4]``):
+
+  =====================  ================================  ====================================
+  SIMPLE_RADIAL_FISHEYE  f, cx, cy, k                      fx = fy = f, [k, 0, 0, 0]
+  RADIAL_FISHEYE         f, cx, cy, k1, k2                 fx = fy = f, [k1, k2, 0, 0]
+  OPENCV_FISHEYE         fx, fy, cx, cy, k1, k2, k3, k4    [k1, k2, k3, k4]
+  =====================  ================================  ====================================
+
+  COLMAP's radial, radial-tangential and fisheye models are OpenCV's (in normalised coordinates),
+  so the coefficients carry over unchanged. Every other model (FOV, THIN_PRISM_FISHEYE, ...) is an
   InputError: run ``colmap image_undistorter`` first and load its output folder.
 - intrinsics scale with the image actually read (same continuous extent): ``fx *= w / W``,
   ``cx *= w / W``, ``fy *= h / H``, ``cy *= h / H`` for an image of w x h from a COLMAP camera of
@@ -35,7 +44,7 @@ all text (``.txt``), read with ``pycolmap.Reconstruction`` (pycolmap >= 4). The 
   outlier points SfM leaves move neither; on the LLFF room, near is within 8% of LLFF's and far
   10-24% beyond it). A view observing fewer than MIN_OBSERVED_POINTS points uses instead every
   model point that projects into its image (in front of it, inside the image rectangle,
-  distortion ignored) when those are more; NaN ("the input does not say") only when it has no
+  a pinhole's distortion ignored, a fisheye's lens model used) when those are more; NaN ("the input does not say") only when it has no
   point at all.
 - aabb: None, as for LLFF: a COLMAP model states no scene bounds; the pipeline bounds the scene
   by the camera frusta over [near, far]. The points' robust box (0.5 / 99.5 percentiles of the
@@ -77,6 +86,7 @@ from scenelabel.data.io.llff import ASPECT_TOLERANCE_PX, choose_image_folder, pa
 from scenelabel.data.scene import Scene
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.lens import FISHEYE, PINHOLE, pixels_from_camera_points
 
 __all__ = [
     "SPARSE_FOLDER",
@@ -84,6 +94,7 @@ __all__ = [
     "SUPPORTED_CAMERA_MODELS",
     "find_sparse_dir",
     "colmap_intrinsics",
+    "colmap_camera_model",
     "read_colmap_cameras",
     "load_colmap",
 ]
@@ -94,8 +105,11 @@ SPARSE_FOLDER = "sparse"
 #: The three files of a COLMAP model (each ``.bin`` or ``.txt``).
 MODEL_FILES = ("cameras", "images", "points3D")
 
-#: COLMAP camera models that are a pinhole with (at most) OpenCV k1 k2 p1 p2 distortion.
-SUPPORTED_CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+#: COLMAP camera models that are OpenCV's equidistant fisheye (k1, k2, k3, k4 or fewer) ...
+FISHEYE_CAMERA_MODELS = ("SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE")
+#: ... and every model scenelabel reads: pinholes with (at most) OpenCV k1 k2 p1 p2 distortion, then those.
+SUPPORTED_CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                           *FISHEYE_CAMERA_MODELS)
 
 #: near = NEAR_MARGIN x the NEAR_PERCENTILE-th percentile of a view's point distances ...
 NEAR_PERCENTILE = 0.1
@@ -208,7 +222,8 @@ def _check_binary_counts(folder: Path) -> None:
 def colmap_intrinsics(
     model: str, params, camera: str = "camera", path: Path | None = None
 ) -> tuple[float, float, float, float, np.ndarray]:
-    """A COLMAP camera's (fx, fy, cx, cy, distortion [4] = k1, k2, p1, p2) (module docstring table).
+    """A COLMAP camera's (fx, fy, cx, cy, distortion [4]) (module docstring tables): a pinhole's
+    k1, k2, p1, p2 or a fisheye's k1, k2, k3, k4 (:func:`colmap_camera_model` says which).
 
     Args:
         model: COLMAP model name (e.g. "SIMPLE_RADIAL").
@@ -220,11 +235,13 @@ def colmap_intrinsics(
             and saying to run ``colmap image_undistorter`` first; a wrong number of params.
     """
     p = np.asarray(params, dtype=np.float64).ravel()
-    expected = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12}
+    expected = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12,
+                "SIMPLE_RADIAL_FISHEYE": 4, "RADIAL_FISHEYE": 5, "OPENCV_FISHEYE": 8}
     if model not in expected:
         raise InputError(
             f"{camera} has COLMAP camera model {model}, which scenelabel does not support (supported: "
-            f"{', '.join(SUPPORTED_CAMERA_MODELS)}: pinhole with at most OpenCV k1, k2, p1, p2); {_UNDISTORT_HINT}",
+            f"{', '.join(SUPPORTED_CAMERA_MODELS)}: pinholes with at most OpenCV k1, k2, p1, p2, fisheyes with "
+            f"OpenCV k1, k2, k3, k4); {_UNDISTORT_HINT}",
             path,
         )
     if len(p) != expected[model]:
@@ -232,7 +249,7 @@ def colmap_intrinsics(
     if not np.all(np.isfinite(p)):
         raise InputError(f"{camera} has non-finite params {p.tolist()}", path)
     distortion = np.zeros(4)
-    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE"):
         fx = fy = p[0]
         cx, cy = p[1], p[2]
         distortion[: len(p) - 3] = p[3:]
@@ -248,6 +265,11 @@ def colmap_intrinsics(
     if fx <= 0 or fy <= 0:
         raise InputError(f"{camera} has a non-positive focal length (fx={fx}, fy={fy})", path)
     return float(fx), float(fy), float(cx), float(cy), distortion
+
+
+def colmap_camera_model(model: str) -> str:
+    """The ``Cameras.model`` of a (supported) COLMAP camera model: "fisheye" or "pinhole"."""
+    return FISHEYE if model in FISHEYE_CAMERA_MODELS else PINHOLE
 
 
 def _c2w_from_cam_from_world(image, path: Path) -> np.ndarray:
@@ -271,14 +293,15 @@ def _distance_bounds(distances: np.ndarray) -> tuple[float, float]:
     return NEAR_MARGIN * float(low), FAR_MARGIN * float(high)
 
 
-def _in_image(points: np.ndarray, c2w: np.ndarray, fx, fy, cx, cy, width, height) -> np.ndarray:
-    """[m] bool: points in front of the camera whose pinhole projection is inside the image."""
+def _in_image(
+    points: np.ndarray, c2w: np.ndarray, fx, fy, cx, cy, width, height, distortion=None, model: str = PINHOLE
+) -> np.ndarray:
+    """[m] bool: points the camera's lens model projects inside the image (for a pinhole: in front
+    of the camera; pass no distortion for an ideal pinhole)."""
     cam = (points - c2w[:3, 3]) @ c2w[:3, :3]  # camera-frame coordinates (R^T (X - C))
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = fx * cam[:, 0] / z + cx
-        v = fy * cam[:, 1] / z + cy
-    return (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    uv = pixels_from_camera_points(cam, fx, fy, cx, cy, distortion, model)  # [m, 2], NaN: not projected
+    with np.errstate(invalid="ignore"):
+        return (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
 
 
 def _pinholes(intrinsics: list[tuple], sizes: list[tuple[int, int]]) -> dict[str, list]:
@@ -318,7 +341,7 @@ def _read_model(folder: str | Path) -> _Model:
         for element in reconstruction.points3D[point_id].track.elements:
             observed.setdefault(element.image_id, []).append(row)
 
-    c2ws, intrinsics, models, sizes, near, far = [], [], [], [], [], []
+    c2ws, intrinsics, models, lenses, sizes, near, far = [], [], [], [], [], [], []
     for image in registered:
         camera = reconstruction.cameras[image.camera_id]
         model = camera.model.name
@@ -327,13 +350,17 @@ def _read_model(folder: str | Path) -> _Model:
         )
         c2w = _c2w_from_cam_from_world(image, images_file)
         rows = sorted(set(observed.get(image.image_id, ())))
+        lens = colmap_camera_model(model)
         if len(rows) < MIN_OBSERVED_POINTS:
-            in_image = np.flatnonzero(_in_image(points, c2w, fx, fy, cx, cy, camera.width, camera.height)).tolist()
+            lens_distortion = distortion if lens == FISHEYE else None  # a pinhole's distortion ignored
+            in_image = _in_image(points, c2w, fx, fy, cx, cy, camera.width, camera.height, lens_distortion, lens)
+            in_image = np.flatnonzero(in_image).tolist()
             rows = in_image if len(in_image) > len(rows) else rows
         bounds = _distance_bounds(np.linalg.norm(points[rows] - c2w[:3, 3], axis=1))
         c2ws.append(c2w)
         intrinsics.append((fx, fy, cx, cy, distortion))
         models.append(model)
+        lenses.append(lens)
         sizes.append((int(camera.width), int(camera.height)))
         near.append(bounds[0])
         far.append(bounds[1])
@@ -344,6 +371,7 @@ def _read_model(folder: str | Path) -> _Model:
         distortion=np.stack([i[4] for i in intrinsics]),
         near=near,
         far=far,
+        model=lenses,
     )
     return _Model(
         folder=folder,
@@ -364,7 +392,7 @@ def read_colmap_cameras(sparse_dir: str | Path) -> tuple[list[str], Cameras, np.
     Returns:
         names: [n] model image names (as in the model, e.g. "IMG_0001.JPG"), sorted;
         cameras: [n] in scenelabel's conventions at the COLMAP cameras' resolution (c2w OpenCV
-            axes in the model's world frame, intrinsics, distortion [k1, k2, p1, p2], near/far
+            axes in the model's world frame, intrinsics, lens model and distortion, near/far
             from the points, see the module docstring);
         points: [m, 3] float64 world positions of the model's 3D points.
     Raises:
@@ -511,6 +539,7 @@ def load_colmap(path: str | Path, downscale: int = 1) -> Scene:
         distortion=picked.distortion,
         near=picked.near,
         far=picked.far,
+        model=picked.model,
     )
     info = {
         "format": "colmap",

@@ -3,8 +3,10 @@ validation and pose checks.
 
 Everything here converts into scenelabel's conventions (docs/conventions.md):
 
-- images: float32 RGB in [0, 1], shape [h, w, 3]; an alpha channel is dropped (not composited);
-  grayscale is replicated to three channels; 16-bit images are scaled by 1/65535.
+- images: float32 RGB in [0, 1], shape [h, w, 3]; grayscale is replicated to three channels; 16-bit
+  images are scaled by 1/65535. An alpha channel (RGBA, LA, a palette with transparency) is kept
+  beside the colour as float32 [h, w] in [0, 1] (:func:`read_image_alpha`, ``Scene.image_alphas``), not
+  composited: training composites it on the build's background.
 - labels: int64 external class ids, shape [h, w]; 8- or 16-bit single-channel PNG, true values.
 - depths: float32 [h, w], distance along the unit ray direction, world units.
 - poses: c2w 4x4 with a rigid, right-handed rotation.
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import cv2
 import numpy as np
@@ -49,6 +51,8 @@ __all__ = [
     "resize_nearest",
     "image_size",
     "read_image",
+    "read_image_alpha",
+    "resize_premultiplied",
     "read_label",
     "read_depth",
     "check_label_ids",
@@ -57,7 +61,9 @@ __all__ = [
     "resolve_image_path",
     "scene_classes",
     "ViewFiles",
+    "ViewData",
     "read_view",
+    "alphas_or_none",
 ]
 
 #: Image file suffixes a loader accepts (compared case-insensitively), in the order tried when a
@@ -81,6 +87,11 @@ _MAX_16BIT = 65535.0
 #: PIL modes of single-channel integer images (labels); "1" is a 1-bit mask (values 0/1).
 _LABEL_MODES = frozenset({"1", "L", "P", "I", "I;16", "I;16L", "I;16B", "I;16N"})
 _SIXTEEN_BIT_MODES = frozenset({"I", "I;16", "I;16L", "I;16B", "I;16N"})
+
+#: Below this resampled alpha a pixel's colour is the plain area average instead of the
+#: alpha-weighted one (:func:`read_image_alpha`): the pixel is (almost) fully transparent, so its
+#: colour is (almost) invisible, and dividing by a near-zero alpha would amplify rounding noise.
+ALPHA_EPS = 1e-6
 
 #: Errors PIL raises for unreadable, truncated or oversized files.
 _PIL_ERRORS = (OSError, SyntaxError, ValueError, Image.DecompressionBombError)
@@ -270,30 +281,84 @@ def image_size(path: Path) -> tuple[int, int]:
 
 
 def read_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
-    """Read an image as float32 RGB in [0, 1], shape [h, w, 3].
+    """Read an image as float32 RGB in [0, 1], shape [h, w, 3], ignoring any alpha channel.
 
-    Alpha is dropped (not composited onto any background); grayscale is replicated to RGB;
-    16-bit grayscale is divided by 65535. EXIF orientation is *not* applied: pixels are used as
-    stored, which is what poses and intrinsics from NeRF tools refer to.
+    Grayscale is replicated to RGB; 16-bit grayscale is divided by 65535. EXIF orientation is
+    *not* applied: pixels are used as stored, which is what poses and intrinsics from NeRF tools
+    refer to. Scene loaders use :func:`read_image_alpha`, which keeps the alpha.
 
     Args:
         path: PNG or JPEG file.
         size: (width, height) to area-resample to, or None to keep the file's size.
     """
+    return read_image_alpha(path, size)[0]
+
+
+def _has_alpha(image: Image.Image) -> bool:
+    """Whether a PIL image carries transparency: an alpha band, or a palette / colour key."""
+    return "A" in image.getbands() or "transparency" in image.info
+
+
+def resize_premultiplied(rgb: np.ndarray, alpha: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area-resample an RGBA image so that compositing commutes with resampling.
+
+    The alpha is area-averaged; the colour is the alpha-weighted average
+    ``area(rgb * alpha) / area(alpha)`` (the plain average where the averaged alpha is below
+    ALPHA_EPS). So ``rgb' * alpha' + bg * (1 - alpha')`` equals the area average of the full
+    resolution composite ``rgb * alpha + bg * (1 - alpha)`` for every background ``bg``.
+
+    Args:
+        rgb: [h, w, 3] float32; alpha: [h, w] float32 in [0, 1].
+    Returns:
+        rgb [height, width, 3] float32 in [0, 1], alpha [height, width] float32 in [0, 1].
+    """
+    small_alpha = resize_area(alpha[..., None], width, height)[..., 0]
+    premultiplied = resize_area(rgb * alpha[..., None], width, height)
+    plain = resize_area(rgb, width, height)
+    seen = small_alpha[..., None] >= ALPHA_EPS
+    small_rgb = np.where(seen, premultiplied / np.maximum(small_alpha[..., None], ALPHA_EPS), plain)
+    return np.clip(small_rgb, 0.0, 1.0).astype(np.float32), np.clip(small_alpha, 0.0, 1.0).astype(np.float32)
+
+
+def read_image_alpha(path: Path, size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read an image as float32 RGB in [0, 1], shape [h, w, 3], and its alpha channel.
+
+    As :func:`read_image` for the colour (which is not composited onto anything: a transparent
+    pixel keeps the colour stored under it). The alpha of RGBA, LA and palette-with-transparency
+    images is float32 [h, w] in [0, 1]; an image without one, or whose alpha is 1 everywhere, gives
+    None (opaque). Resampling keeps compositing exact (:func:`resize_premultiplied`).
+
+    Args:
+        path: PNG or JPEG file.
+        size: (width, height) to area-resample to, or None to keep the file's size.
+    Returns:
+        (rgb [h, w, 3], alpha [h, w] or None).
+    """
     path = Path(path)
     image = _open(path, "image")
+    alpha = None
     if image.mode in _SIXTEEN_BIT_MODES:
         gray = np.asarray(image, dtype=np.float32) / _MAX_16BIT
         rgb = np.repeat(gray[..., None], 3, axis=2)
     else:
         try:
-            rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / _MAX_8BIT
+            if _has_alpha(image):
+                rgba = np.asarray(image.convert("RGBA"), dtype=np.float32) / _MAX_8BIT
+                rgb, alpha = rgba[..., :3], rgba[..., 3]
+            else:
+                rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / _MAX_8BIT
         except _PIL_ERRORS as error:
             raise InputError(f"cannot convert image mode {image.mode} to RGB ({error})", path) from None
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
-    if size is not None:
+    if alpha is not None and bool(np.all(alpha == 1.0)):
+        alpha = None  # an opaque image that happens to carry an alpha band
+    if alpha is not None:
+        alpha = np.ascontiguousarray(alpha, dtype=np.float32)
+        if size is not None:
+            rgb, alpha = resize_premultiplied(rgb, alpha, *size)
+    elif size is not None:
         rgb = resize_area(rgb, *size)
-    return rgb
+    return rgb, alpha
 
 
 def read_label(path: Path, expected_size: tuple[int, int], size: tuple[int, int] | None = None) -> np.ndarray:
@@ -375,31 +440,32 @@ def check_label_ids(label: np.ndarray, classes: dict[int, str], ignore_index: in
 # poses
 
 
-def check_pose(c2w: np.ndarray, path: Path, frame: str) -> np.ndarray:
-    """Check a camera-to-world matrix and return it as float64 [4, 4].
+def check_pose(c2w: np.ndarray, path: Path | None, frame: str, what: str = "pose") -> np.ndarray:
+    """Check a rigid transform (a camera-to-world matrix, or ``what`` names another) and return it
+    as float64 [4, 4].
 
     Accepts [4, 4] or [3, 4] (bottom row [0, 0, 0, 1] added). The rotation must be rigid and
-    right-handed: ``max|R^T R - I| <= ROTATION_TOLERANCE`` and ``det R > 0``.
+    right-handed: ``max|R^T R - I| <= ROTATION_TOLERANCE`` and ``det R > 0`` (no scale, no mirror).
 
     Raises:
-        InputError: naming ``path`` and ``frame`` for a wrong shape, a non-finite entry, a wrong
-            bottom row or a non-rigid rotation.
+        InputError: naming ``path`` and ``frame`` (the JSON field) for a wrong shape, a non-finite
+            entry, a wrong bottom row or a non-rigid rotation.
     """
     c2w = np.asarray(c2w, dtype=np.float64)
     if c2w.shape == (3, 4):
         c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
     if c2w.shape != (4, 4):
-        raise InputError(f"pose must be 4x4 or 3x4, got shape {list(c2w.shape)}", path, field=frame)
+        raise InputError(f"{what} must be 4x4 or 3x4, got shape {list(c2w.shape)}", path, field=frame)
     if not np.all(np.isfinite(c2w)):
-        raise InputError("pose has non-finite entries (NaN or Inf)", path, field=frame)
+        raise InputError(f"{what} has non-finite entries (NaN or Inf)", path, field=frame)
     if np.max(np.abs(c2w[3] - [0.0, 0.0, 0.0, 1.0])) > BOTTOM_ROW_TOLERANCE:
-        raise InputError(f"pose bottom row must be [0, 0, 0, 1], got {c2w[3].tolist()}", path, field=frame)
+        raise InputError(f"{what} bottom row must be [0, 0, 0, 1], got {c2w[3].tolist()}", path, field=frame)
     rotation = c2w[:3, :3]
     error = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
     det = float(np.linalg.det(rotation))
     if error > ROTATION_TOLERANCE or det <= 0:
         raise InputError(
-            f"pose rotation is not rigid (max|R^T R - I| = {error:.3g}, det R = {det:.3g}); "
+            f"{what} rotation is not rigid (max|R^T R - I| = {error:.3g}, det R = {det:.3g}); "
             f"expected an orthonormal rotation with det +1",
             path,
             field=frame,
@@ -463,21 +529,30 @@ class ViewFiles:
     depth: Path | None = None
 
 
-def read_view(
-    view: ViewFiles, file_size: tuple[int, int], size: tuple[int, int], vocabulary: ClassesFile
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Read one view's image, label and depth, resampled to ``size``.
+class ViewData(NamedTuple):
+    """What :func:`read_view` read of one view."""
+
+    image: np.ndarray  # [h, w, 3] float32 in [0, 1]
+    label: np.ndarray | None  # [h, w] int64 external class ids
+    depth: np.ndarray | None  # [h, w] float32 ground-truth depth along the unit ray
+    alpha: np.ndarray | None  # [h, w] float32 in [0, 1]; None: opaque
+
+
+def read_view(view: ViewFiles, file_size: tuple[int, int], size: tuple[int, int], vocabulary: ClassesFile) -> ViewData:
+    """Read one view's image (with its alpha), label and depth, resampled to ``size``.
 
     Args:
         view: the files.
         file_size: (width, height) of the image file; label and depth must have this size.
-        size: (width, height) wanted: images are area-resampled, labels and depths nearest.
+        size: (width, height) wanted: images and alpha are area-resampled
+            (:func:`read_image_alpha`), labels and depths nearest.
         vocabulary: classes.json; label ids must be among its classes (or its ignore_index).
     Returns:
-        image [h, w, 3] float32 in [0, 1]; label [h, w] int64 or None; depth [h, w] float32 or None.
+        ViewData: image [h, w, 3] float32 in [0, 1]; label [h, w] int64 or None; depth [h, w]
+        float32 or None; alpha [h, w] float32 or None.
     """
     target = None if tuple(size) == tuple(file_size) else size
-    image = read_image(view.image, target)
+    image, alpha = read_image_alpha(view.image, target)
     label = None
     if view.label is not None:
         label = read_label(view.label, file_size)
@@ -486,23 +561,29 @@ def read_view(
         if target is not None:
             label = np.ascontiguousarray(resize_nearest(label, *target))
     depth = None if view.depth is None else read_depth(view.depth, file_size, target)
-    return image, label, depth
+    return ViewData(image, label, depth, alpha)
+
+
+def alphas_or_none(alphas: Sequence[np.ndarray | None]) -> list[np.ndarray | None] | None:
+    """``Scene.image_alphas`` from per-view alphas: None when every view is opaque."""
+    return None if all(a is None for a in alphas) else list(alphas)
 
 
 def scene_from_views(
-    root: Path, cameras: Cameras, files: list[ViewFiles], views: list[tuple], vocabulary: ClassesFile, info: dict
+    root: Path, cameras: Cameras, files: list[ViewFiles], views: list[ViewData], vocabulary: ClassesFile, info: dict
 ) -> Scene:
     """A Scene (no explicit aabb, frame "world") from per-view files and what :func:`read_view` read."""
     return Scene(
         root=root,
         cameras=cameras,
         names=[f.name for f in files],
-        images=[v[0] for v in views],
-        labels=[v[1] for v in views],
-        depths=[v[2] for v in views],
+        images=[v.image for v in views],
+        labels=[v.label for v in views],
+        depths=[v.depth for v in views],
         classes=dict(vocabulary.classes),
         ignore_index=vocabulary.ignore_index,
         aabb=None,
         frame_id="world",
         info=info,
+        image_alphas=alphas_or_none([v.alpha for v in views]),
     )

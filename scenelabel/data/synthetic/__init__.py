@@ -4,7 +4,8 @@ Labelled axis-aligned boxes and per-class textures are rendered by one exact ray
 involved) into scene folders in the ``transforms.json`` layout (docs/conventions.md).
 
 Modules: ``geometry`` (boxes, scenes, ray casting and shading), ``textures``, ``views`` (cameras,
-pixel rays, rendering one view) and ``scenes`` (the two scenes, camera paths, writers, label noise).
+pixel rays, rendering one view), ``scenes`` (the two scenes, camera paths, writers, label noise) and
+``phone_depth`` (phone-like sensor depth for a written scene folder, :func:`add_phone_depth`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from scenelabel.data.synthetic.geometry import (
     cast_rays,
     shade_hits,
 )
+from scenelabel.data.synthetic.phone_depth import add_phone_depth
 from scenelabel.data.synthetic.scenes import (
     HOLDOUT_EVERY,
     ROOM_BOXES,
@@ -50,6 +52,7 @@ __all__ = [
     "ClassInfo",
     "RayHits",
     "SyntheticScene",
+    "add_phone_depth",
     "cast_rays",
     "corrupt_labels",
     "furnished_room_geometry",
