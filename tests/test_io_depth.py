@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from PIL import Image
+from test_io_transforms import _opengl_pose  # the same known poses as the transforms.json tests
 
 from scenelabel.data.io import load_scene
 from scenelabel.data.io.applied_transform import (
@@ -42,19 +43,6 @@ COLMAP_APPLIED = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0
 
 # ---------------------------------------------------------------------------------------------
 # helpers
-
-
-def _rotation(axis, angle: float) -> np.ndarray:
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
-
-
-def _opengl_pose(index: int) -> np.ndarray:
-    pose = np.eye(4)
-    pose[:3, :3] = _rotation([1.0, 2.0, 0.5], 0.4 * index)
-    pose[:3, 3] = [0.5 * index, -1.0, 2.0 + index]
-    return pose
 
 
 def make_scene(
