@@ -260,3 +260,15 @@ def test_sensor_depth_turns_the_solid_interior_term_on(scene):
     for data, train, expected in cases:
         trainer, _, _ = prepare_training(data, preset("quick", {"train": train}), torch.device("cpu"))
         assert trainer.solid_weight == expected, (train, expected)
+
+
+def test_sensor_depth_on_held_out_views_only_leaves_the_bounds_to_the_coarse_fit(scene):
+    """Only the held-out view 0 has sensor depth: the bounds come from the coarse fit, and say so."""
+    loaded = load_scene(scene)
+    cameras = dataclasses.replace(loaded.cameras, near=np.full(len(loaded), np.nan), far=np.full(len(loaded), np.nan))
+    depths = [None] * len(loaded)
+    depths[0] = _with_sensor_depth(loaded).sensor_depths[0]
+    bare = dataclasses.replace(loaded, cameras=cameras, aabb=None, sensor_depths=depths)
+    _, static, test_idx = prepare_training(bare, preset("quick"), torch.device("cpu"))
+    assert 0 in test_idx
+    assert static["aabb_source"].startswith("observed geometry")

@@ -405,13 +405,13 @@ def prepare_training(
 
     train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
     class_map = _class_map(scene, train_idx)
-    points = None
+    points, seen_by = None, "sensor depth"
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
         points = sensor_depth_points(scene, train_idx)
-        if points is None:
+        if points is None:  # no training view has sensor depth
             points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
+            seen_by = "observed geometry"
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
-    seen_by = "sensor depth" if scene.sensor_depths is not None else "observed geometry"
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if context.distributed:
         aabb = broadcast_array(aabb, device)
