@@ -21,6 +21,9 @@ __all__ = [
     "BuildConfig",
     "PRESETS",
     "preset",
+    "AUTO",
+    "DISTORTION_AUTO_WEIGHT",
+    "DISTORTION_THIN_MAX",
     "config_from_dict",
     "config_to_dict",
     "render_background",
@@ -124,6 +127,19 @@ class SamplingConfig:
                 raise ConfigError(f"sampling.{name} must be an integer >= 1, got {value!r}")
 
 
+AUTO = "auto"
+"""``train.distortion_weight``: chosen by the build from how many views see the observed geometry."""
+
+DISTORTION_AUTO_WEIGHT = 0.002
+"""The distortion weight ``"auto"`` chooses where the views see the scene well."""
+
+DISTORTION_THIN_MAX = 0.05
+"""``"auto"`` turns the distortion term on only where at most this fraction of the observed geometry is
+seen by fewer than :data:`scenelabel.geometry.coverage.THIN_VIEWS` training views: with one or two views
+to fix a surface's depth, gathering weight into a surface commits it to a wrong depth. Chosen on the
+scene suite's tuning rooms, between those the term helped and those it harmed (docs/models.md;
+docs/suite.md gives each room's fraction and the weight its build chose)."""
+
 RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""
 
@@ -147,8 +163,11 @@ class TrainConfig:
     lr_mlp: float = 5e-3
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
-    # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off)
-    distortion_weight: float = 0.0
+    # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off).
+    # "auto": DISTORTION_AUTO_WEIGHT where the build measured the observed geometry (an input without
+    # near/far or aabb) and at most DISTORTION_THIN_MAX of it is seen by fewer than 3 training views
+    # (scenelabel.geometry.coverage), else 0; the build saves the number it chose
+    distortion_weight: float | str = "auto"
     # the distortion loss is on from this fraction of the run (Trainer.progress): surfaces form
     # first, then their weight gathers (0: from the start)
     distortion_start: float = 0.0
@@ -198,8 +217,11 @@ class TrainConfig:
             raise ConfigError(f"train.distortion_start must be a fraction in [0, 1], got {start!r}")
         for name in ("distortion_weight", "tv_weight", "solid_weight", "depth_weight", "depth_solid_weight"):
             w = getattr(self, name)
+            if name == "distortion_weight" and w == AUTO:
+                continue
             if isinstance(w, bool) or not (isinstance(w, (int, float)) and math.isfinite(w) and w >= 0):
-                raise ConfigError(f"train.{name} must be a finite number >= 0, got {w!r}")
+                also = f' or "{AUTO}"' if name == "distortion_weight" else ""
+                raise ConfigError(f"train.{name} must be a finite number >= 0{also}, got {w!r}")
 
 
 @dataclass

@@ -54,6 +54,14 @@ def test_unknown_choices_are_errors(overrides):
         preset("fast", overrides)
 
 
+def test_distortion_weight_is_auto_or_a_number():
+    """The default lets the build choose; a word other than "auto" names both accepted forms."""
+    assert preset("fast").train.distortion_weight == "auto"
+    assert preset("fast", {"train": {"distortion_weight": 0.01}}).train.distortion_weight == 0.01
+    with pytest.raises(ConfigError, match='train.distortion_weight must be a finite number >= 0 or "auto", got \'often\''):
+        preset("fast", {"train": {"distortion_weight": "often"}})
+
+
 def test_a_background_is_a_colour_random_or_black():
     assert preset("fast", {"train": {"background": "random"}}).train.background == "random"
     assert preset("fast", {"train": {"background": [0, 0.5, 1]}}).train.background == (0, 0.5, 1)

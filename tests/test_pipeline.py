@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from scenelabel import SemanticField, build, preset, write_toy_scene
+from scenelabel.config import AUTO, DISTORTION_AUTO_WEIGHT, DISTORTION_THIN_MAX
 from scenelabel.data.io import load_scene
 from scenelabel.data.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.errors import InputError
@@ -196,3 +197,25 @@ def test_a_room_without_near_far_or_aabb_is_bounded_by_what_its_cameras_see(tmp_
     assert volume < 0.2 * np.prod(frusta[1] - frusta[0])
     _, again, _ = prepare_training(scene, preset("quick"), torch.device("cpu"))
     assert again["aabb_world"] == static["aabb_world"]  # deterministic for a seed
+    # the distortion term's "auto" is decided on the observed geometry, and the number is saved
+    distortion = static["distortion"]
+    assert 0.0 <= distortion["thinly_seen"] <= 1.0
+    expected = DISTORTION_AUTO_WEIGHT if distortion["thinly_seen"] <= DISTORTION_THIN_MAX else 0.0
+    assert distortion["weight"] == expected == static["config"]["train"]["distortion_weight"]
+
+
+def test_auto_distortion_follows_how_well_the_views_see_the_scene():
+    """resolve_distortion: a number stays; "auto" is on only where little of the observed geometry
+    is thinly seen, and off where nothing was measured (an input with its own bounds)."""
+    from scenelabel.train.pipeline import resolve_distortion
+
+    auto = preset("quick")
+    assert auto.train.distortion_weight == AUTO
+    cases = [(None, 0.0), (0.0, DISTORTION_AUTO_WEIGHT), (DISTORTION_THIN_MAX, DISTORTION_AUTO_WEIGHT), (0.6, 0.0)]
+    for thinly_seen, weight in cases:
+        config, record = resolve_distortion(auto, thinly_seen)
+        assert config.train.distortion_weight == record["weight"] == weight
+        assert record["thinly_seen"] == thinly_seen and record["why"].startswith("on" if weight else "off")
+    fixed = preset("quick", {"train": {"distortion_weight": 0.01}})
+    config, record = resolve_distortion(fixed, 0.9)
+    assert config.train.distortion_weight == 0.01 and record["why"] == "as configured"

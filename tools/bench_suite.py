@@ -36,8 +36,12 @@ TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F
 VARIANTS: dict[str, dict] = {
     "-": {},
     "distortion": {"train": {"distortion_weight": 0.002}},
+    "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
     "voxels": {"preset": "voxels"},
+    "dense": {"preset": "dense"},
+    "steps-384": {"sampling": {"n_steps": 384}},
+    "planes-256": {"field": {"resolutions": [64, 256]}},
     "random-bg": {"train": {"background": "random"}},
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
     "distortion-late": {"train": {"distortion_weight": 0.002, "distortion_start": 0.3}},
@@ -173,6 +177,8 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "aabb": aabb.tolist(),
         "box_volume_ratio": float(np.prod(aabb[1] - aabb[0]) / np.prod(true[1] - true[0])),
         "box_holds_interior": bool(np.all(aabb[0] <= interior[0]) and np.all(aabb[1] >= interior[1])),
+        "thinly_seen": ckpt["distortion"]["thinly_seen"],
+        "distortion_weight": ckpt["distortion"]["weight"],
         **_three_d(result.field, scene, test_idx, geometry.boxes),
     })
 
@@ -185,6 +191,10 @@ def run_one(spec: dict) -> dict:
 
 def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f}"
+
+
+def _weight(x) -> str:
+    return "n/a" if x is None else f"{x:g}"
 
 
 COLUMNS = (
@@ -200,6 +210,7 @@ COLUMNS = (
     ("free field / map %", lambda r: f"{_pct(r['free_field'])} / {_pct(r['free_map'])}"),
     ("P / R / F at 5 cm", lambda r: f"{r['precision']:.3f} / {r['recall']:.3f} / {r['fscore']:.3f}"),
     ("samples/ray", lambda r: f"{r['samples_per_ray']:.1f}"),
+    ("thinly seen % / distortion", lambda r: f"{_pct(r.get('thinly_seen'))} / {_weight(r.get('distortion_weight'))}"),
     ("map s", lambda r: f"{r['map_seconds']:.1f}"),
     ("render s", lambda r: f"{r['render_seconds']:.2f}"),
     ("box / true volume", lambda r: f"{r['box_volume_ratio']:.2f}{'' if r['box_holds_interior'] else ' (cuts the room)'}"),
@@ -303,6 +314,7 @@ def code_version() -> str:
 
 
 def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> None:
+    from scenelabel.config import DISTORTION_THIN_MAX
     variants = list(dict.fromkeys(r["variant"] for r in rows))
     code = ", ".join(sorted({r.get("code", "unknown") for r in rows}))
     with_depth = any(v.startswith("phone-depth") for v in variants)
@@ -319,6 +331,10 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         "rays, free labels of points at least 0.1 m in front of it; P / R / F: the 0.05 m map's",
         "occupied voxel centres against the surfaces the views see. Samples per ray: the mean of the",
         "last logged training steps. Box / true volume: the modelled box against the rooms' true bounds.",
+        "Thinly seen: the share of the observed geometry (the build's coarse fit) inside fewer than 3",
+        "training views' images; distortion: the weight of the distortion term the build trained with",
+        f"(`train.distortion_weight` \"auto\" turns it on where at most {DISTORTION_THIN_MAX:.0%} is thinly seen; variant",
+        "`distortion` forces 0.002, `no-distortion` 0).",
         "",
         *(["Variants `phone-depth*`: the room also carries depth as a phone gives it",
            "(`scenelabel.data.synthetic.add_phone_depth`: z-depth PNGs at quarter resolution, 1.5 % noise, holes at",

@@ -30,13 +30,23 @@ import torch
 
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
-from scenelabel.config import BuildConfig, config_from_dict, config_to_dict, preset, render_background
+from scenelabel.config import (
+    AUTO,
+    DISTORTION_AUTO_WEIGHT,
+    DISTORTION_THIN_MAX,
+    BuildConfig,
+    config_from_dict,
+    config_to_dict,
+    preset,
+    render_background,
+)
 from scenelabel.data.io import load_scene
 from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_to_dict
+from scenelabel.geometry.coverage import THIN_VIEWS, thinly_seen_fraction
 from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.rays import rays_from_cameras
@@ -198,6 +208,7 @@ def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
     for key in ("class_map", "aabb_world", "train_views"):
         if ckpt.meta.get(key) != json.loads(json.dumps(static[key])):  # as the checkpoint's JSON holds it
             raise CheckpointError(f"{ckpt_path}: cannot resume: the checkpoint's {key} differs from this scene's")
+    static["distortion"] = ckpt.meta.get("distortion", static["distortion"])  # why the first run chose its weight
     trainer.load_state_dict(ckpt.training_state())
 
 
@@ -405,13 +416,17 @@ def prepare_training(
 
     train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
     class_map = _class_map(scene, train_idx)
-    points, seen_by = None, "sensor depth"
+    points, seen_by, thinly_seen = None, "sensor depth", None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
         points = sensor_depth_points(scene, train_idx)
         if points is None:  # no training view has sensor depth
             points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
             seen_by = "observed geometry"
+            thinly_seen = thinly_seen_fraction(scene.cameras[train_idx], points)
+            if context.distributed:  # every rank trains with rank 0's choice
+                thinly_seen = float(broadcast_array(np.array([thinly_seen]), device)[0])
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
+    config, distortion = resolve_distortion(config, thinly_seen)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if context.distributed:
         aabb = broadcast_array(aabb, device)
@@ -434,10 +449,38 @@ def prepare_training(
         "train_views": [scene.names[i] for i in train_idx],
         "test_views": [scene.names[i] for i in test_idx],
         "split": split_rule,
+        "distortion": distortion,
         TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
     return trainer, static, test_idx
+
+
+def resolve_distortion(config: BuildConfig, thinly_seen: float | None) -> tuple[BuildConfig, dict]:
+    """``config`` with ``train.distortion_weight`` a number, and the record of the choice.
+
+    ``"auto"`` becomes DISTORTION_AUTO_WEIGHT when the build measured the observed geometry and at
+    most DISTORTION_THIN_MAX of it is seen by fewer than THIN_VIEWS training views
+    (``thinly_seen``, :func:`scenelabel.geometry.coverage.thinly_seen_fraction`), else 0: an input that
+    gives its bounds (or sensor depth) has no observed geometry measured. A number stays as given.
+
+    Returns:
+        (the config, {"weight", "thinly_seen" (None: not measured), "why"}).
+    """
+    tc = config.train
+    if tc.distortion_weight != AUTO:
+        weight, why = float(tc.distortion_weight), "as configured"
+    elif thinly_seen is None:
+        weight, why = 0.0, "off: no observed geometry measured (the input gives its bounds or sensor depth)"
+    else:
+        on = thinly_seen <= DISTORTION_THIN_MAX
+        weight = DISTORTION_AUTO_WEIGHT if on else 0.0
+        why = (
+            f"{'on' if on else 'off'}: {thinly_seen:.0%} of the observed geometry is seen by fewer than "
+            f"{THIN_VIEWS} training views ({'at most' if on else 'more than'} {DISTORTION_THIN_MAX:.0%})"
+        )
+    resolved = dataclasses.replace(config, train=dataclasses.replace(tc, distortion_weight=weight))
+    return resolved, {"weight": weight, "thinly_seen": thinly_seen, "why": why}
 
 
 def _training_plan(config: BuildConfig, static: dict) -> str:
@@ -446,7 +489,11 @@ def _training_plan(config: BuildConfig, static: dict) -> str:
     limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:g} s, whichever comes first"
     aabb = np.asarray(static["aabb_world"])
     size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
-    return f"bounds {size} ({static['aabb_source']}); training ({config.preset}): {limit}"
+    distortion = static["distortion"]
+    return (
+        f"bounds {size} ({static['aabb_source']}); training ({config.preset}): {limit}; "
+        f"distortion term {distortion['weight']:g} ({distortion['why']})"
+    )
 
 
 def _training_metrics(trainer: Trainer) -> dict:
@@ -513,6 +560,7 @@ def build(
     ckpt_path = out_dir / CHECKPOINT_NAME
     try:
         trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
+        config = trainer.config  # "auto" settings resolved
 
         def payload(t: Trainer) -> Checkpoint:
             return Checkpoint(**t.state_dict(), meta=static)

@@ -6,7 +6,10 @@ Orchestration only; the maths lives in rendering.py, sampling.py and losses.py.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -15,7 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from scenelabel.config import RANDOM_BACKGROUND, BuildConfig
+from scenelabel.config import AUTO, RANDOM_BACKGROUND, BuildConfig
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
 from scenelabel.fields.model import FieldNetwork
@@ -79,6 +82,29 @@ def free_space_limit(target: torch.Tensor, step: float) -> torch.Tensor:
     """[n_rays] distances before which a ray with measured depth ``target`` [n_rays] should be empty
     (NaN where there is no measurement)."""
     return target * (1.0 - FREE_MARGIN) - step
+
+
+@contextmanager
+def _interrupt_between_steps():
+    """Inside: the first Ctrl-C (SIGINT) sets the yielded event, which the loop checks before each
+    step, instead of raising KeyboardInterrupt wherever the main thread happens to be (inside a
+    finaliser or a callback Python ignores it, and training went on); a second Ctrl-C interrupts at
+    once. Off the main thread (signals cannot be handled there) the event is never set."""
+    interrupted = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield interrupted
+        return
+
+    def on_sigint(signum, frame):
+        if interrupted.is_set():
+            raise KeyboardInterrupt
+        interrupted.set()
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield interrupted
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @dataclass
@@ -286,6 +312,8 @@ class Trainer:
         # is filled at least at train.depth_solid_weight (without depth: train.solid_weight alone)
         with_depth = self.rays.depth is not None and tc.depth_weight > 0
         self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
+        # "auto" is resolved by the build (pipeline.resolve_distortion); a trainer made without it: off
+        self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
         self.state = TrainState()
         # the colour variance of the targets (with alpha: composited; a random background adds its
         # uniform variance 1/12 weighted by (1 - alpha)^2)
@@ -373,7 +401,7 @@ class Trainer:
         mse = photometric_mse(out.rgb, target_rgb)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
-        distortion_weight = tc.distortion_weight if self.progress() >= tc.distortion_start else 0.0
+        distortion_weight = self.distortion_weight if self.progress() >= tc.distortion_start else 0.0
         loss = mse + tc.semantic_weight * ce + distortion_weight * distortion
         depth_term = mse.new_zeros(())
         if target_depth is not None:  # expected termination (the transparent rest at the ray's far end)
@@ -445,10 +473,14 @@ class Trainer:
         """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
 
         When training ends, the density grid is rebuilt from the final field
-        (:meth:`~scenelabel.render.sampling.DensityGrid.rebuild`). On Ctrl-C it calls
+        (:meth:`~scenelabel.render.sampling.DensityGrid.rebuild`). On Ctrl-C (taken between steps) it calls
         ``on_checkpoint`` once more and raises :class:`TrainingInterrupted`.
         Data-parallel: only rank 0 shows progress and calls ``on_checkpoint``.
         """
+        with _interrupt_between_steps() as interrupted:
+            return self._run(on_checkpoint, progress, interrupted)
+
+    def _run(self, on_checkpoint, progress: bool, interrupted: threading.Event) -> TrainState:
         tc = self.config.train
         start = time.perf_counter() - self.state.elapsed
         if not self.dist.is_main:
@@ -457,6 +489,8 @@ class Trainer:
         bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
         try:
             while self.state.step < tc.steps:
+                if interrupted.is_set():
+                    raise KeyboardInterrupt
                 logs = self.train_step()
                 elapsed = time.perf_counter() - start
                 if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
