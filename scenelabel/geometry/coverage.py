@@ -13,7 +13,7 @@ import numpy as np
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.geometry.lens import pixels_from_camera_points
+from scenelabel.geometry.lens import inside_image, project_points
 
 __all__ = ["THIN_VIEWS", "views_seeing_points", "thinly_seen_fraction"]
 
@@ -35,14 +35,11 @@ def views_seeing_points(cameras: Cameras, points: np.ndarray) -> np.ndarray:
         raise InputError(f"points must have shape [k, 3], got {points.shape}", field="points")
     count = np.zeros(len(points), dtype=np.int64)
     for i in range(len(cameras)):
-        c2w = cameras.c2w[i]
-        cam = (points - c2w[:3, 3]) @ c2w[:3, :3]  # [k, 3] camera frame: R^T (p - t)
-        uv = pixels_from_camera_points(
-            cam, cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i], cameras.distortion[i], cameras.model[i]
+        uv, _, _ = project_points(
+            points, cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
+            cameras.distortion[i], cameras.model[i],
         )  # [k, 2], NaN where the lens does not project the point
-        with np.errstate(invalid="ignore"):
-            inside = (uv[:, 0] >= 0) & (uv[:, 0] < cameras.width[i]) & (uv[:, 1] >= 0) & (uv[:, 1] < cameras.height[i])
-        count += inside
+        count += inside_image(uv, cameras.width[i], cameras.height[i])
     return count
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.geometry.lens import pixels_from_camera_points
+from scenelabel.geometry.lens import inside_image, project_points
 from scenelabel.geometry.rays import rays_from_cameras
 
 __all__ = ["scale_from_depth", "AGREEMENT", "MIN_AGREEING"]
@@ -54,10 +54,9 @@ def _pairs(views: list[int]) -> list[tuple[int, int]]:
 def _nearest_depth(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """[k] the depth image's value at the pixel holding each (u, v) (NaN outside the image)."""
     h, w = depth.shape
-    col, row = np.floor(uv[:, 0]), np.floor(uv[:, 1])
-    inside = np.isfinite(col) & np.isfinite(row) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    inside = inside_image(uv, w, h)
     out = np.full(len(uv), np.nan)
-    out[inside] = depth[row[inside].astype(np.int64), col[inside].astype(np.int64)]
+    out[inside] = depth[np.floor(uv[inside, 1]).astype(np.int64), np.floor(uv[inside, 0]).astype(np.int64)]
     return out
 
 
@@ -66,14 +65,13 @@ def _agreements(samples: list[tuple], cameras: Cameras, depths: list, scale: flo
     total = 0
     for j, origin, directions, measured in samples:
         points = scale * origin + measured[:, None] * directions  # [k, 3] in metres
-        c2w = cameras.c2w[j]
-        rel = points - scale * c2w[:3, 3]
-        cam = rel @ c2w[:3, :3]  # [k, 3] camera frame of view j (OpenCV axes)
-        uv = pixels_from_camera_points(
-            cam, cameras.fx[j], cameras.fy[j], cameras.cx[j], cameras.cy[j], cameras.distortion[j], cameras.model[j]
-        )  # NaN where view j's lens does not see the point
+        c2w = cameras.c2w[j].copy()
+        c2w[:3, 3] *= scale  # view j's centre at this scale
+        uv, _, predicted = project_points(
+            points, c2w, cameras.fx[j], cameras.fy[j], cameras.cx[j], cameras.cy[j], cameras.distortion[j],
+            cameras.model[j],
+        )  # NaN where view j's lens does not see the point; predicted: distance from view j
         seen = _nearest_depth(depths[j], uv)
-        predicted = np.linalg.norm(rel, axis=-1)
         with np.errstate(invalid="ignore"):
             total += int(np.sum(np.abs(predicted - seen) < AGREEMENT * seen))
     return total
@@ -83,7 +81,7 @@ def scale_from_depth(cameras: Cameras, depths: list[np.ndarray | None], seed: in
     """The factor ``s`` (metres per pose unit) that makes the views' sensor depths agree.
 
     Points are projected through each camera's lens model and distortion
-    (:func:`scenelabel.geometry.lens.pixels_from_camera_points`).
+    (:func:`scenelabel.geometry.lens.project_points`).
 
     Args:
         cameras: [n] cameras in the poses' own unit.

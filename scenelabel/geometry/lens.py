@@ -41,6 +41,8 @@ __all__ = [
     "fisheye_angle_from_distorted",
     "fisheye_directions_from_pixels",
     "pixels_from_camera_points",
+    "project_points",
+    "inside_image",
 ]
 
 PINHOLE = "pinhole"
@@ -222,3 +224,41 @@ def pixels_from_camera_points(
         else:
             raise InputError(f"unknown camera model {model!r}; known: {', '.join(CAMERA_MODELS)}", field="model")
     return np.stack([fx * a + cx, fy * b + cy], axis=-1)
+
+
+def project_points(
+    points: np.ndarray,
+    c2w: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    distortion: np.ndarray | None = None,
+    model: str = PINHOLE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projection of world points into one camera (OpenCV axes) through its lens model
+    (:func:`pixels_from_camera_points`; an ideal pinhole by default).
+
+    Args:
+        points: [N, 3] world points.
+        c2w: [4, 4] camera-to-world (OpenCV axes: x right, y down, z forward).
+        fx, fy, cx, cy: intrinsics in pixels (pixel centres at +0.5).
+        distortion: [4] the model's coefficients, or None (zeros).
+        model: ``"pinhole"`` or ``"fisheye"``.
+    Returns:
+        uv: [N, 2] continuous pixel coordinates (NaN where the model does not project the
+            point: for a pinhole ``z <= 0``, not in front).
+        z: [N] camera-frame z (forward) of each point.
+        dist: [N] distance from the camera centre, i.e. the depth along the point's unit ray.
+    """
+    rel = np.asarray(points, np.float64) - c2w[:3, 3]  # [N, 3] world offsets from the centre
+    cam = rel @ c2w[:3, :3]  # [N, 3] camera frame: R^T (p - t)
+    uv = pixels_from_camera_points(cam, fx, fy, cx, cy, distortion, model)  # [N, 2]
+    return uv, cam[:, 2], np.linalg.norm(rel, axis=-1)
+
+
+def inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[n] bool: the continuous pixel coordinates uv [n, 2] lie in a width x height image
+    (``0 <= u < width``, ``0 <= v < height``; NaN is outside)."""
+    with np.errstate(invalid="ignore"):
+        return (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)

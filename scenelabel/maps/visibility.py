@@ -48,7 +48,7 @@ import numpy as np
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lattice import voxel_centers
-from scenelabel.geometry.lens import FISHEYE, PINHOLE, pixels_from_camera_points
+from scenelabel.geometry.lens import FISHEYE, inside_image, project_points
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.maps.codes import OCCUPIED_THRESHOLD, uint8_from_unit
 from scenelabel.maps.raycast import leap_lengths, transmittance_crossings
@@ -119,37 +119,6 @@ def scaled_cameras(cameras: Cameras, max_width: int = DEPTH_MAP_WIDTH) -> Camera
     )
 
 
-def project_points(
-    points: np.ndarray,
-    c2w: np.ndarray,
-    fx: float,
-    fy: float,
-    cx: float,
-    cy: float,
-    distortion: np.ndarray | None = None,
-    model: str = PINHOLE,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projection of world points into one camera (OpenCV axes) through its lens model
-    (:func:`scenelabel.geometry.lens.pixels_from_camera_points`; an ideal pinhole by default).
-
-    Args:
-        points: [N, 3] world points.
-        c2w: [4, 4] camera-to-world (OpenCV axes: x right, y down, z forward).
-        fx, fy, cx, cy: intrinsics in pixels (pixel centres at +0.5).
-        distortion: [4] the model's coefficients, or None (zeros).
-        model: ``"pinhole"`` or ``"fisheye"``.
-    Returns:
-        uv: [N, 2] continuous pixel coordinates (NaN where the model does not project the
-            point: for a pinhole ``z <= 0``, not in front).
-        z: [N] camera-frame z (forward) of each point.
-        dist: [N] distance from the camera centre, i.e. the depth along the point's unit ray.
-    """
-    rel = np.asarray(points, np.float64) - c2w[:3, 3]  # [N, 3] world offsets from the centre
-    cam = rel @ c2w[:3, :3]  # [N, 3] camera frame: R^T (p - t)
-    uv = pixels_from_camera_points(cam, fx, fy, cx, cy, distortion, model)  # [N, 2]
-    return uv, cam[:, 2], np.linalg.norm(rel, axis=-1)
-
-
 def _check_inputs(points: Any, cameras: Cameras, depth_maps: Sequence[np.ndarray], margin: float) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
@@ -201,11 +170,7 @@ def visible_from_cameras(
         far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
         width, height = int(cameras.width[i]), int(cameras.height[i])
         with np.errstate(invalid="ignore"):
-            in_view = (
-                (uv[:, 0] >= 0) & (uv[:, 0] < width)
-                & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-                & (dist >= near) & (dist <= far)
-            )  # [n_todo]
+            in_view = inside_image(uv, width, height) & (dist >= near) & (dist <= far)  # [n_todo]
         hits = np.flatnonzero(in_view)
         cols = np.floor(uv[hits, 0]).astype(np.int64)
         rows = np.floor(uv[hits, 1]).astype(np.int64)
