@@ -25,6 +25,7 @@ __all__ = [
     "label_accuracy",
     "label_boundaries",
     "miou",
+    "spurious_classes",
     "pose_centre_errors",
     "pose_rotation_errors_deg",
     "probe_points",
@@ -124,21 +125,37 @@ def confusion_matrix(
 def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
     """Mean intersection over union from a [C, C + 1] confusion matrix (or a plain [C, C] one).
 
-    IoU_c = TP / (TP + FP + FN). Classes absent from both target and prediction get NaN and are
-    left out of the mean.
+    IoU_c = TP / (TP + FP + FN) for every class; NaN for a class absent from both target and
+    prediction. The mean is over the classes the **target** holds (Semantic-NeRF's
+    ``miou_valid_class``; ScanNet's and Cityscapes' benchmarks also leave classes without ground
+    truth out): a class that is only predicted keeps its IoU of 0 in the per-class array, and its
+    pixels count against the classes they truly belong to (as their false negatives), but it does
+    not enter the mean with the weight of a whole class. On the few held-out views of a room, that
+    weight made the mean hinge on a handful of stray pixels of a class no held-out view shows.
+    :func:`spurious_classes` names such classes.
 
     Returns:
-        (mean IoU, [C] per-class IoU).
+        (mean IoU, NaN when the target holds no class; [C] per-class IoU).
     """
     confusion = np.asarray(confusion, np.float64)
     C = confusion.shape[0]
     tp = np.diag(confusion[:, :C])
-    fn = confusion.sum(1) - tp
+    in_target = confusion.sum(1)
+    fn = in_target - tp
     fp = confusion[:, :C].sum(0) - tp
     denom = tp + fp + fn
     with np.errstate(invalid="ignore", divide="ignore"):
         iou = np.where(denom > 0, tp / denom, np.nan)
-    return (float(np.nanmean(iou)) if np.any(denom > 0) else float("nan")), iou
+    return (float(np.mean(iou[in_target > 0])) if np.any(in_target > 0) else float("nan")), iou
+
+
+def spurious_classes(confusion: np.ndarray) -> np.ndarray:
+    """[C] predicted pixels of each class the target does not hold (0 for the classes it holds):
+    what :func:`miou` leaves out of its mean, from a [C, C + 1] (or [C, C]) confusion matrix."""
+    confusion = np.asarray(confusion)
+    C = confusion.shape[0]
+    predicted = confusion[:, :C].sum(0)
+    return np.where(confusion.sum(1) > 0, 0, predicted)
 
 
 def depth_error(

@@ -283,6 +283,18 @@ def _sensor_depth_channels(tmp):
     return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", rgb)
 
 
+def _colour_exr(path):
+    import OpenEXR
+
+    ramp = np.linspace(1.0, 2.0, 18 * 24 * 3, dtype=np.float32).reshape(18, 24, 3)
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGB": ramp}) as exr:
+        exr.write(str(path))
+
+
+def _sensor_depth_colour_exr(tmp):
+    return _with_sensor_file(tmp, "depth_file_path", "depth/001.exr", _colour_exr)
+
+
 def _sensor_depth_aspect(tmp):
     return _with_sensor_file(tmp, "depth_file_path", "depth/001.png", _png16((10, 10)))
 
@@ -364,6 +376,7 @@ CASES = [
     Case("sensor depth file missing (depth_file_path)", _sensor_depth_missing, ("transforms.json", "depth/001.png", "not found")),
     Case("sensor depth file unreadable", _sensor_depth_unreadable, ("001.png", "cannot read the depth image")),
     Case("sensor depth with 3 channels", _sensor_depth_channels, ("001.png", "one channel, got 3")),
+    Case("sensor depth EXR in colour", _sensor_depth_colour_exr, ("001.exr", "one named Z, depth, Y", "B, G, R")),
     Case("sensor depth with another aspect than its image", _sensor_depth_aspect, ("001.png", "10x10", "aspect")),
     Case("depth_unit_scale_factor not positive", _sensor_depth_scale, ("transforms.json", "depth_unit_scale_factor")),
     Case("mask file missing (mask_path)", _mask_missing, ("transforms.json", "masks/001.png", "not found")),

@@ -13,9 +13,12 @@ import pytest
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_dict
 from scenelabel.geometry.lens import (
+    FISHEYE,
+    PINHOLE,
     fisheye_angle_from_distorted,
     fisheye_distorted_angle,
     fisheye_max_angle,
+    ideal_pinhole_image,
     pixels_from_camera_points,
 )
 from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid, rays_from_cameras
@@ -284,3 +287,39 @@ def test_z_depth_of_a_fisheye():
     dirs = camera_directions_from_pixels(pixel_grid(W, H), FX, FY, CX, CY, K, "fisheye")
     np.testing.assert_allclose(z.reshape(-1), 2.0 * dirs[:, 2], atol=1e-6)
     assert (z < 0).any()
+
+
+# resampling to the ideal pinhole (what rerun's Pinhole draws)
+def _image_of_a_function(fn, w, h, fx, fy, cx, cy, distortion, model):
+    """[h, w] image whose pixel shows fn(a, b) of the point (a, b, 1) its ray meets (a pinhole's
+    normalised coordinates)."""
+    rays = camera_directions_from_pixels(pixel_grid(w, h), fx, fy, cx, cy, distortion, model)  # [h w, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return fn(rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]).reshape(h, w)
+
+
+@pytest.mark.parametrize("distortion, model", [((0.12, -0.04, 0.004, -0.003), PINHOLE), ((0.05, -0.01, 0.0, 0.0), FISHEYE)])
+def test_ideal_pinhole_image_undoes_the_lens(distortion, model):
+    w, h, fx, fy, cx, cy = 64, 48, 40.0, 42.0, 31.0, 25.0
+    plane = lambda a, b: 3.0 + 2.0 * a - 1.5 * b  # noqa: E731 - linear in the ideal pinhole's coordinates
+    seen = _image_of_a_function(plane, w, h, fx, fy, cx, cy, distortion, model)
+    ideal = ideal_pinhole_image(seen, fx, fy, cx, cy, distortion, model, fill=np.nan)
+    want = _image_of_a_function(plane, w, h, fx, fy, cx, cy, None, PINHOLE)
+    inside = np.isfinite(ideal)
+    assert inside.mean() > 0.8
+    np.testing.assert_allclose(ideal[inside], want[inside], atol=0.02)  # bilinear blend of a curved map of a plane
+    # labels: nearest, no blend, and the lens's own ideal pinhole is left as it is
+    labels = (seen > 3.0).astype(np.int16)
+    ideal_labels = ideal_pinhole_image(labels, fx, fy, cx, cy, distortion, model, nearest=True, fill=-1)
+    assert ideal_labels.dtype == np.int16 and set(np.unique(ideal_labels)) <= {-1, 0, 1}
+    agree = (ideal_labels >= 0) & (np.abs(want - 3.0) > 0.1)
+    np.testing.assert_array_equal(ideal_labels[agree], (want[agree] > 3.0).astype(np.int16))
+    np.testing.assert_array_equal(ideal_pinhole_image(labels, fx, fy, cx, cy), labels)
+
+
+def test_ideal_pinhole_image_fills_rays_the_lens_did_not_image():
+    """Pincushion distortion (k1 > 0) pushes the ideal pinhole's corner rays out of the image."""
+    image = np.full((40, 40, 3), 200, np.uint8)
+    out = ideal_pinhole_image(image, 10.0, 10.0, 20.0, 20.0, (0.3, 0.0, 0.0, 0.0), PINHOLE, fill=7)
+    assert out.dtype == np.uint8 and out.shape == image.shape
+    assert (out[20, 20] == 200).all() and (out[0, 0] == 7).all()

@@ -25,7 +25,6 @@ from scenelabel.data.io.applied_transform import (
 from scenelabel.data.io.depth import (
     DEPTH_AGREEMENT_TOLERANCE,
     WEIGHT_EPS,
-    _opencv_has_openexr,
     metric_depth_from_raw,
     ray_depth_from_z_depth,
     read_depth_raw,
@@ -282,23 +281,54 @@ def test_depth_holes_stay_nan(tmp_path: Path) -> None:
     assert np.isnan(png_depth[5, 5]) and np.isfinite(png_depth).sum() == 12 * 16 - 1
 
 
-def test_exr_depth_round_trip_or_clear_error(tmp_path: Path) -> None:
-    """EXR is read by OpenCV when its build has OpenEXR (the installed 5.x wheel has not: then a
-    clear error says to convert the file)."""
-    root = tmp_path / "s"
-    (root / "depth").mkdir(parents=True)
-    z = np.random.default_rng(3).uniform(0.5, 3.0, (3, 4)).astype(np.float32)
-    path = root / "depth" / "d.exr"
-    if _opencv_has_openexr():
-        import os
+def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    import OpenEXR
 
-        os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-        assert cv2.imwrite(str(path), z)
-        np.testing.assert_array_equal(read_depth_raw(path), z)
-    else:
-        path.write_bytes(b"v/1\x01" + bytes(60))  # an EXR magic number; never decoded
-        with pytest.raises(InputError, match="OpenEXR"):
-            read_depth_raw(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, channels) as exr:
+        exr.write(str(path))
+
+
+def test_exr_depth_channels(tmp_path: Path) -> None:
+    """EXR is read with the OpenEXR bindings: a Z (or depth, or Y) channel, a single channel of
+    any name, half floats widened, a grey image stored as equal R, G, B; else a clear error."""
+    z = np.random.default_rng(3).uniform(0.5, 3.0, (3, 4)).astype(np.float32)
+    write_exr(tmp_path / "z.exr", {"Z": z, "R": z + 1.0})
+    np.testing.assert_array_equal(read_depth_raw(tmp_path / "z.exr"), z)
+    write_exr(tmp_path / "one.exr", {"A": z})
+    np.testing.assert_array_equal(read_depth_raw(tmp_path / "one.exr"), z)
+    half = z.astype(np.float16)
+    write_exr(tmp_path / "half.exr", {"Y": half})
+    out = read_depth_raw(tmp_path / "half.exr")
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, half.astype(np.float32))
+    write_exr(tmp_path / "grey.exr", {"RGB": np.stack([z, z, z], -1)})
+    np.testing.assert_array_equal(read_depth_raw(tmp_path / "grey.exr"), z)
+    write_exr(tmp_path / "colour.exr", {"RGB": np.stack([z, z + 1, z], -1)})
+    with pytest.raises(InputError, match="one named Z, depth, Y; this one has B, G, R"):
+        read_depth_raw(tmp_path / "colour.exr")
+    (tmp_path / "bad.exr").write_bytes(b"v/1\x01" + bytes(60))  # an EXR magic number, then nothing
+    with pytest.raises(InputError, match="cannot read the EXR depth"):
+        read_depth_raw(tmp_path / "bad.exr")
+
+
+def test_exr_depth_in_a_scene(tmp_path: Path) -> None:
+    """A float EXR in metres (``depth_unit_scale_factor`` 1.0) loads as the same depth as a .npy."""
+    root = tmp_path / "s"
+    z = np.full((12, 16), 2.5, np.float32)
+    z[3, 4] = 0.0  # a hole
+    write_exr(root / "depth" / "d.exr", {"Z": z})
+    np.save(root / "depth" / "d.npy", z)
+
+    def edit(data):
+        data["frames"][0].update(depth_file_path="depth/d.exr", depth_unit_scale_factor=1.0)
+        data["frames"][1].update(depth_file_path="depth/d.npy", depth_unit_scale_factor=1.0)
+
+    scene = load_quiet(make_scene(root, edit=edit))
+    assert np.isnan(scene.sensor_depths[0][3, 4])
+    np.testing.assert_array_equal(np.isnan(scene.sensor_depths[0]), np.isnan(scene.sensor_depths[1]))
+    assert scene.sensor_depths[0][6, 7] == pytest.approx(float(_expected_ray(z, scene, 0)[6, 7]), rel=1e-6)
 
 
 def test_low_resolution_depth_aligned_by_intrinsics(tmp_path: Path) -> None:

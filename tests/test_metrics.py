@@ -503,3 +503,18 @@ def test_surface_fscore_exact_boxes_agree_with_dense_point_set():
     d_points = cKDTree(true).query(pred)[0]
     np.testing.assert_allclose(d_exact, np.abs(offset), atol=1e-12)
     assert np.all(d_points >= d_exact - 1e-12) and np.all(d_points <= d_exact + 0.01)
+
+
+def test_miou_leaves_out_classes_only_predicted():
+    """A class no target pixel holds: IoU 0 in the per-class array, pixels counted against the
+    class they belong to, out of the mean (Semantic-NeRF's miou_valid_class); spurious_classes names it."""
+    from scenelabel.metrics import spurious_classes
+
+    target = np.array([1, 1, 1, 1, 3, 3])
+    pred = np.array([1, 1, 1, 7, 3, 3])  # one floor pixel called 7, which the target never shows
+    conf = confusion_matrix(pred, target, np.array([1, 3, 7]))
+    mean, per = miou(conf)
+    np.testing.assert_allclose(per, [3 / 4, 1.0, 0.0])
+    assert math.isclose(mean, (3 / 4 + 1.0) / 2)  # not (3/4 + 1 + 0) / 3
+    np.testing.assert_array_equal(spurious_classes(conf), [0, 0, 1])
+    assert np.all(spurious_classes(confusion_matrix(target, target, np.array([1, 3, 7]))) == 0)

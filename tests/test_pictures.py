@@ -17,6 +17,7 @@ from scenelabel.maps.exports import class_palette
 from scenelabel.query.answers import RenderResult
 from scenelabel.viz.pictures import (
     CAPTION_HEIGHT,
+    COLORBAR_HEIGHT,
     GAP,
     LEGEND_ENTRY_WIDTH,
     LEGEND_ROW_HEIGHT,
@@ -54,11 +55,12 @@ def _view():
     return rng.random((H, W, 3)), render, true, np.where(true >= 0, 2.5, 0.0)
 
 
-def _expected_size(n_panels, image_width, image_height, n_legend):
+def _expected_size(n_panels, image_width, image_height, n_legend, depth_panels=True):
     scale = math.ceil(MIN_PANEL_WIDTH / image_width) if image_width < MIN_PANEL_WIDTH else 1
     width = n_panels * image_width * scale + (n_panels + 1) * GAP
     rows = math.ceil(n_legend / max(1, (width - 2 * GAP) // LEGEND_ENTRY_WIDTH)) if n_legend else 0
-    return width, TITLE_HEIGHT + CAPTION_HEIGHT + image_height * scale + GAP + rows * LEGEND_ROW_HEIGHT + GAP
+    bar = COLORBAR_HEIGHT if depth_panels else 0
+    return width, TITLE_HEIGHT + CAPTION_HEIGHT + image_height * scale + GAP + bar + rows * LEGEND_ROW_HEIGHT + GAP
 
 
 def test_panels_picture_has_its_size_captions_title_and_legend(tmp_path):
@@ -88,6 +90,21 @@ def test_panels_picture_has_its_size_captions_title_and_legend(tmp_path):
     texts = [t.get_text() for t in fig.texts]
     assert texts == [title, *captions, *[name for _, name in legend]]
     assert (layout.width, layout.height) == pic.size
+    # one colour bar per depth panel, its ticks inside the depth range of the caption
+    vmin, vmax = panels[5].vmin, panels[5].vmax
+    bars = [ax for ax in fig.axes if ax.get_label().startswith("colour bar: ")]
+    assert len(bars) == 2
+    np.testing.assert_allclose(bars[0].get_xlim(), (vmin, vmax))
+    assert sum(vmin <= t <= vmax for t in bars[0].get_xticks()) >= 2
+    bar_rows = image[TITLE_HEIGHT + CAPTION_HEIGHT + layout.panel_height:][:COLORBAR_HEIGHT].astype(int)
+    r, g, b = bar_rows[..., 0], bar_rows[..., 1], bar_rows[..., 2]
+    assert ((r > 200) & (g > 200) & (b < 100)).any() and ((r < 90) & (g < 30) & (b > 60)).any()  # viridis' two ends
+
+
+def test_pictures_without_depth_have_no_colour_bar():
+    layout = panel_layout([Panel("a", np.zeros((30, 40, 3)))], 0)
+    assert layout.colorbar_height == 0
+    assert panel_layout([Panel("d", np.ones((30, 40)), "depth")], 0).colorbar_height == COLORBAR_HEIGHT
 
 
 def test_label_errors_panel_marks_wrong_pixels_only():

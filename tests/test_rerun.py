@@ -131,7 +131,7 @@ def test_a_build_recording_holds_every_view_and_the_held_out_renders(tiny_build,
     assert len(record["/world/map"]["Points3D:positions"][0]) == summary.n_points == int((occ.label >= 0).sum())
     assert summary.n_views == 8 and summary.n_renders == 1 and summary.n_steps == 4
     held = "/world/views/held_out/000"
-    for suffix in ("", "/image", "/image/photo", "/image/mask", "/image/render/rgb", "/image/render/labels",
+    for suffix in ("", "/image", "/image/photo", "/image/mask", "/image/depth", "/image/render/rgb", "/image/render/labels",
                    "/image/render/depth"):
         assert held + suffix in record, suffix
     assert {f"/world/views/train/{i:03d}/image/photo" for i in range(1, 8)} <= set(record)
@@ -169,3 +169,32 @@ def test_export_rrd_from_the_command_line(tiny_build, tmp_path):
     proc = subprocess.run([*run, str(out / "map.zarr"), str(tmp_path / "v.rrd"), "--voxel-size", "0.2"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and "--voxel-size applies to a build folder" in proc.stderr
+
+
+def test_views_of_a_distorted_camera_are_resampled_to_the_pinhole_logged(tmp_path):
+    """rerun's Pinhole has no distortion: photo, mask and depth are logged as its ideal pinhole sees them."""
+    import dataclasses
+
+    from scenelabel.data.io import load_scene
+    from scenelabel.geometry.lens import ideal_pinhole_image
+
+    scene = load_scene(write_toy_scene(tmp_path / "scene", n_train=2, n_test=1, width=32, height=24))
+    distortion = np.tile([0.25, -0.05, 0.01, 0.0], (len(scene), 1))
+    scene = dataclasses.replace(scene, cameras=dataclasses.replace(scene.cameras, distortion=distortion))
+    summary = log_rerun(_box_map(), tmp_path / "d.rrd", scene=scene, meshes=False)
+    record = read_rrd(summary.path)
+    base = f"/world/views/train/{scene.names[0]}/image"
+    cam = scene.cameras
+    args = (cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], distortion[0], "pinhole")
+    photo = np.frombuffer(bytes(record[base + "/photo"]["Image:buffer"][0][0]), np.uint8).reshape(24, 32, 3)
+    expected = ideal_pinhole_image((np.clip(scene.images[0], 0, 1) * 255 + 0.5).astype(np.uint8), *args)
+    np.testing.assert_array_equal(photo, expected)
+    assert (photo[0, 0] == 0).all() and not np.array_equal(photo, expected * 0)  # pincushion: corners not imaged
+    mask = np.frombuffer(bytes(record[base + "/mask"]["SegmentationImage:buffer"][0][0]), np.uint16).reshape(24, 32)
+    assert mask[0, 0] == RERUN_IGNORED
+    np.testing.assert_array_equal(mask, ideal_pinhole_image(rerun_class_ids(scene.labels[0], scene.ignore_index), *args, nearest=True,
+                                                            fill=RERUN_IGNORED))
+    depth = np.frombuffer(bytes(record[base + "/depth"]["DepthImage:buffer"][0][0]), np.float32).reshape(24, 32)
+    true_z = ideal_pinhole_image(z_depth(scene.depths[0], *args), *args, nearest=True)
+    np.testing.assert_allclose(depth, true_z, rtol=1e-6)
+    assert depth[12, 16] > 0 and depth[0, 0] == 0

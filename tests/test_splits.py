@@ -106,7 +106,8 @@ def test_split_files_load_as_one_scene_in_train_val_test_order(split_scene: Path
     for split, views in scene.splits.items():
         np.testing.assert_allclose(scene.cameras.fx[views], 0.5 * 32 / math.tan(0.5 * ANGLES[split]))
     assert scene.info["split_source"] == "input files: transforms_train.json, transforms_val.json, transforms_test.json"
-    assert scene.info["splits"]["val"] == {"file": "transforms_val.json", "views": 2, "frames_listed": 2, "skipped_frames": 0}
+    assert scene.info["splits"]["val"] == {"file": "transforms_val.json", "views": 2, "frames_listed": 2, "skipped_frames": 0,
+                                           "image_folder": "val"}
     assert scene.info["source"] == str(split_scene) and scene.info["image_folder"] == "."
     assert scene.info["labelled_views"] == 8 and scene.info["depth_views"] == 8
     assert all(label is not None for label in scene.labels) and all(d is not None for d in scene.depths)
@@ -326,3 +327,20 @@ def test_lego_loads_train_and_val_with_an_empty_test_split() -> None:
     np.testing.assert_allclose(scene.cameras.fx, 0.5 * 100 / math.tan(0.5 * angle))
     train, test, rule = choose_views(scene, 8)
     assert train == list(range(100)) and test == list(range(100, 200)) and rule == "input files: train, val held out"
+
+
+def test_the_viewer_finds_the_photos_of_split_views(split_scene: Path, tmp_path: Path) -> None:
+    """Views named ``<split>_r_<k>`` have their photo at ``<split>/r_<k>.png``: the viewer's frusta find it."""
+    from scenelabel.data.io.transforms_json import split_view_parts
+    from scenelabel.viz.viewer import find_view_images, view_image_candidates
+
+    scene = load_quiet(split_scene)
+    assert split_view_parts("train_r_0", scene.info["splits"]) == ("train", "r_0")
+    assert split_view_parts("r_0", scene.info["splits"]) is None
+    build_dir = tmp_path / "elsewhere" / "build"  # nothing beside it: only scene_info leads to the photos
+    photos = find_view_images(view_image_candidates(build_dir, {"scene_info": scene.info}, scene.names))
+    assert all(photo is not None for photo in photos)
+    for name, photo, image in zip(scene.names, photos, scene.images):
+        split, stem = split_view_parts(name, scene.info["splits"])
+        on_disk = np.asarray(Image.open(split_scene / split / f"{stem}.png").convert("RGB"))
+        np.testing.assert_array_equal(photo, on_disk)

@@ -47,8 +47,13 @@ def naive_visible(points, cameras, depth_maps, margin, pixel_margin=1.0):
             cam = [sum(R[r, c] * rel[r] for r in range(3)) for c in range(3)]  # R^T (p - t)
             if cam[2] <= 0:
                 continue
-            u = cameras.fx[i] * cam[0] / cam[2] + cameras.cx[i]
-            v = cameras.fy[i] * cam[1] / cam[2] + cameras.cy[i]
+            a, b = cam[0] / cam[2], cam[1] / cam[2]
+            k1, k2, p1, p2 = cameras.distortion[i]  # OpenCV's projectPoints, four coefficients
+            r2 = a * a + b * b
+            radial = 1.0 + k1 * r2 + k2 * r2 * r2
+            a, b = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a), b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+            u = cameras.fx[i] * a + cameras.cx[i]
+            v = cameras.fy[i] * b + cameras.cy[i]
             if not (0 <= u < cameras.width[i] and 0 <= v < cameras.height[i]):
                 continue
             d = math.sqrt(sum(x * x for x in rel))
@@ -136,6 +141,21 @@ def test_vectorised_matches_naive_loop():
     slow = naive_visible(pts, cams, depth_maps, margin=0.1)
     np.testing.assert_array_equal(fast, slow)
     assert 0.05 < fast.mean() < 0.95  # a meaningful mix
+
+
+def test_distorted_pinholes_match_naive_loop_across_threads():
+    """Lens distortion, and a batch large enough to be split over the cores (compiled path)."""
+    rng = np.random.default_rng(4)
+    cams = three_cameras()
+    cams = Cameras.create(
+        cams.c2w, fx=cams.fx, fy=cams.fy, cx=cams.cx, cy=cams.cy, width=cams.width, height=cams.height,
+        near=cams.near, far=cams.far, distortion=[[0.1, -0.05, 0.01, -0.02], [0.0] * 4, [-0.2, 0.03, 0.0, 0.005]],
+    )
+    depth_maps = [rng.uniform(1.5, 6.0, (int(h), int(w))) for h, w in zip(cams.height, cams.width)]
+    pts = rng.uniform(-3, 3, (20_000, 3))
+    fast = visible_from_cameras(pts, cams, depth_maps, margin=0.05, pixel_margin=0.5)
+    np.testing.assert_array_equal(fast, naive_visible(pts, cams, depth_maps, margin=0.05, pixel_margin=0.5))
+    assert 0.05 < fast.mean() < 0.95
 
 
 def test_min_depth_over_neighbours():

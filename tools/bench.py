@@ -381,9 +381,24 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
     path.with_suffix(".json").write_text(json.dumps(rows, indent=2))
 
 
-KEPT_SECTIONS = ("bench_ddp", "bench_real")
+KEPT_SECTIONS = ("bench_ddp", "bench_real", "bench_map_export")
 """Sections other scripts write into the same document (between ``<!-- NAME: begin -->`` and
 ``<!-- NAME: end -->``): kept as they are when this script rewrites it."""
+
+
+def write_kept_section(doc: Path, name: str, section: str) -> None:
+    """Put ``section`` (text, without its markers) into ``doc`` between ``<!-- NAME: begin -->`` and
+    ``<!-- NAME: end -->``, replacing what was there, or appended at the end: the sections other
+    scripts write into docs/benchmarks.md, which this script keeps (KEPT_SECTIONS)."""
+    begin, end = f"<!-- {name}: begin -->", f"<!-- {name}: end -->"
+    marked = f"{begin}\n{section.strip(chr(10))}\n{end}"
+    text = doc.read_text() if doc.exists() else ""
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + marked + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip("\n") + "\n\n" + marked + "\n"
+    doc.write_text(text)
 
 
 def _kept_sections(path: Path) -> list[str]:

@@ -3,7 +3,8 @@
     .venv/bin/python tools/bench_planner.py                 # docs/planner.md and docs/planner.json
     .venv/bin/python tools/bench_planner.py --steps 300 --out /tmp/p.md   # a quick look
 
-One build of the bench room (tools/bench.py's "room", the default preset), then:
+One build of the bench room (tools/bench.py's "room", the default preset, all its steps: no time
+budget, so the same field whatever the machine's load), then:
 
 - **in this process**: the ESDF of the map at MAP_VOXEL (0.05 m), ``distance`` and
   ``distance_gradient`` rates, ``occupancy_map(MAP_VOXEL)`` with the visibility rule, and the baked
@@ -119,7 +120,8 @@ def measure(workdir: Path, steps: int | None) -> dict:
 
     torch.set_num_threads(os.cpu_count() or 1)
     scene = write_furnished_room(workdir / "room")
-    config = preset("fast", {"output": {"write_map": False, "write_renders": False}})
+    # all of the preset's steps, whatever the machine's load (no time budget): the same field every run
+    config = preset("fast", {"train": {"time_budget": 1e9}, "output": {"write_map": False, "write_renders": False}})
     if steps is not None:
         config.train.steps = steps
     t0 = time.perf_counter()
@@ -180,7 +182,7 @@ def write_markdown(r: dict, path: Path, command: str) -> None:
         f"with {os.cpu_count()} CPU cores, Python {platform.python_version()}. One run; rates are medians of "
         f"{REPEATS} calls, fresh-process times medians of {PROCESS_REPEATS} processes.",
         "",
-        f"The bench room (tools/bench.py's `room`) built with the `fast` preset in {r['build_seconds']:.0f} s; "
+        f"The bench room (tools/bench.py's `room`) built with the `fast` preset (all its steps) in {r['build_seconds']:.0f} s; "
         f"its map at {r['map_voxel_size']:g} m is {' x '.join(map(str, r['map_shape']))} voxels; the baked "
         f"field's lattice spacing is {r['baked_voxel_size']:.4g} m ({r['baked_megabytes']:.1f} MB).",
         "",

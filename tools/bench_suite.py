@@ -172,6 +172,9 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "samples_per_ray": float(np.mean([h["samples_per_ray"] for h in m["history"][-4:]])),
         "psnr": m.get("psnr"),
         "miou": m.get("miou"),
+        "per_class_iou": m.get("per_class_iou"),
+        "spurious_classes": m.get("spurious_classes"),
+        "classes": m.get("classes"),
         "render_seconds": statistics.median(v["render_seconds"] for v in m["per_view"]),
         "aabb_source": ckpt["aabb_source"],
         "aabb": aabb.tolist(),
@@ -359,8 +362,39 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
-    lines += ["Bounds chosen per room: " + "; ".join(sorted({r["aabb_source"].split(" (")[0] for r in rows})) + "."]
+    lines += ["Bounds chosen per room: " + "; ".join(sorted({r["aabb_source"].split(" (")[0] for r in rows})) + ".", ""]
+    lines += _per_class(rows)
     path.write_text("\n".join(lines) + "\n")
+
+
+def _per_class(rows: list[dict]) -> list[str]:
+    """Per room, each class's held-out IoU per variant (mIoU is their mean over the classes the
+    held-out views show), and the classes predicted where no held-out view shows them."""
+    rows = [r for r in rows if r.get("per_class_iou")]
+    if not rows:
+        return []
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    lines = ["## Held-out IoU per class", "",
+             "mIoU is the mean over the classes the held-out views show; a class predicted where none "
+             "shows it (spurious: its predicted pixels) is left out of the mean (docs/conventions.md, "
+             "'Labels').", ""]
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        by_variant = {r["variant"]: r for r in rows if r["scene"] == scene}
+        names = next(iter(by_variant.values())).get("classes") or {}
+        ids = sorted({int(c) for r in by_variant.values() for c in r["per_class_iou"]})
+        lines += [f"**{scene}**", "", "| class | " + " | ".join(v for v in variants if v in by_variant) + " |",
+                  "|---|" + "---|" * sum(v in by_variant for v in variants)]
+        for cid in ids:
+            cells = []
+            for v in variants:
+                if v not in by_variant:
+                    continue
+                iou = by_variant[v]["per_class_iou"].get(str(cid))
+                spurious = (by_variant[v].get("spurious_classes") or {}).get(str(cid))
+                cells.append("-" if iou is None else f"{iou:.3f}" + (f" (spurious: {spurious} px)" if spurious else ""))
+            lines.append(f"| {cid} {names.get(str(cid), '')} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
 
 
 def main() -> None:

@@ -41,7 +41,8 @@ class TriPlane(nn.Module):
             F.grid_sample(planes, coords, mode="bilinear", padding_mode="border", align_corners=True)
             for planes in self.planes
         ]  # each [3, C, 1, n]
-        return torch.cat([f.reshape(f.shape[0] * f.shape[1], n) for f in feats]).T.contiguous()
+        # a transposed view, not copied: the linear layers read it as it is
+        return torch.cat([f.reshape(f.shape[0] * f.shape[1], n) for f in feats]).T
 
 
 class _TrilinearCPU(torch.autograd.Function):

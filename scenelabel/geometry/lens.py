@@ -43,6 +43,8 @@ __all__ = [
     "pixels_from_camera_points",
     "project_points",
     "inside_image",
+    "is_ideal_pinhole",
+    "ideal_pinhole_image",
 ]
 
 PINHOLE = "pinhole"
@@ -262,3 +264,54 @@ def inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
     (``0 <= u < width``, ``0 <= v < height``; NaN is outside)."""
     with np.errstate(invalid="ignore"):
         return (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+
+
+def is_ideal_pinhole(distortion=None, model: str = PINHOLE) -> bool:
+    """True for a pinhole without distortion (what viewers such as rerun's Pinhole draw)."""
+    return model == PINHOLE and (distortion is None or not np.any(np.asarray(distortion) != 0))
+
+
+def ideal_pinhole_image(
+    image: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    distortion=None,
+    model: str = PINHOLE,
+    *,
+    nearest: bool = False,
+    fill: float = 0.0,
+) -> np.ndarray:
+    """An image resampled to the ideal pinhole with the same fx, fy, cx, cy and size: pixel (u, v) of
+    the result shows what the camera's own lens (``distortion``, ``model``) saw along the ray
+    ``((u - cx) / fx, (v - cy) / fy, 1)`` (pixel centres at +0.5). Values that do not depend on the
+    pixel's ray (colour, labels, z-depth) stay valid; a depth along the ray does not.
+
+    Args:
+        image: [h, w] or [h, w, k], in the camera's own lens.
+        fx, fy, cx, cy, distortion, model: the camera (:func:`pixels_from_camera_points`).
+        nearest: take the nearest pixel (labels, depths) instead of a bilinear blend.
+        fill: the value of pixels whose ray falls outside the camera's image.
+    Returns:
+        [h, w] or [h, w, k], the dtype of ``image``.
+    """
+    from scipy.ndimage import map_coordinates
+
+    image = np.asarray(image)
+    if is_ideal_pinhole(distortion, model):
+        return image.copy()
+    h, w = image.shape[:2]
+    v, u = np.mgrid[0:h, 0:w] + 0.5  # [h, w] pixel centres of the ideal pinhole
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1).reshape(-1, 3)
+    src = pixels_from_camera_points(rays, fx, fy, cx, cy, distortion, model)  # [h w, 2], NaN: not imaged
+    seen = inside_image(src, w, h)
+    coords = [np.clip(np.nan_to_num(src[:, 1]) - 0.5, 0, h - 1), np.clip(np.nan_to_num(src[:, 0]) - 0.5, 0, w - 1)]
+    channels = image.reshape(h, w, -1).astype(np.float64)
+    out = np.stack([
+        np.where(seen, map_coordinates(channels[..., c], coords, order=0 if nearest else 1, mode="nearest"), fill)
+        for c in range(channels.shape[-1])
+    ], -1)
+    if np.issubdtype(image.dtype, np.integer):
+        out = np.rint(out)
+    return out.reshape(image.shape).astype(image.dtype)

@@ -1,6 +1,6 @@
-"""Semantic occupancy maps, numpy in and out (no torch or OpenCV; numba only once a ray is cast):
-the :class:`OccupancyMap` container, its zarr store, rays through it, its pyramid. This is the
-package's public face; the code lives in its modules:
+"""Semantic occupancy maps, numpy in and out (no torch or OpenCV; numba only once a ray is cast or
+the visibility rule applied): the :class:`OccupancyMap` container, its zarr store, rays through it,
+its pyramid. This is the package's public face; the code lives in its modules:
 
 - :mod:`scenelabel.maps.occupancy_map`: :class:`OccupancyMap` (the conventions, in its docstring);
 - :mod:`scenelabel.maps.codes`: label codes (FREE, UNKNOWN), format constants, uint8 quantisation;
@@ -8,7 +8,8 @@ package's public face; the code lives in its modules:
   :mod:`scenelabel.maps.raycast_kernels`, imported on first use); :mod:`scenelabel.maps.pyramid`: pooling;
 - :mod:`scenelabel.maps.schema`, :mod:`scenelabel.maps.zarr_io`: the store's attributes and zarr pieces;
 - :mod:`scenelabel.maps.validation`: checks of a map's fields on construction;
-- :mod:`scenelabel.maps.visibility` (observed space) and :mod:`scenelabel.maps.exports` (PLY,
+- :mod:`scenelabel.maps.visibility` (observed space; its compiled loop:
+  :mod:`scenelabel.maps.visibility_kernels`) and :mod:`scenelabel.maps.exports` (PLY,
   meshes, floor plans), imported on their own;
 - the lattice helpers (:func:`lattice`, :func:`voxel_centers`, ...) are
   :mod:`scenelabel.geometry.lattice`'s, re-exported here.

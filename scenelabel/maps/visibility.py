@@ -19,7 +19,9 @@ The rule (docs/conventions.md, "Observed space"): a point ``p`` is *seen* by cam
    pixel footprints at that distance (the depth maps are coarse).
 
 A point seen by no camera is unobserved. ``visible_from_cameras`` applies the rule to many points
-at once (vectorised over points, one pass per camera).
+at once: for pinholes in compiled loops (:mod:`scenelabel.maps.visibility_kernels`, numba,
+imported on first use, the points split over the cores, each point's cameras tried until one
+sees it), for fisheyes vectorised over points, one pass per camera.
 
 For a map, the surfaces are the map's own: :func:`camera_surfaces` casts each (shrunk,
 :func:`scaled_cameras`) camera's pixel rays through the map's per-voxel opacities to where their
@@ -157,6 +159,8 @@ def visible_from_cameras(
         [N] bool, True where some camera saw the point.
     """
     points = _check_inputs(points, cameras, depth_maps, margin)
+    if len(points) and not np.any(cameras.model == FISHEYE):
+        return _visible_compiled(np.ascontiguousarray(points), cameras, depth_maps, float(margin), float(pixel_margin))
     seen = np.zeros(len(points), dtype=bool)
     for i in range(len(cameras)):
         todo = np.flatnonzero(~seen)  # only points no camera has seen yet
@@ -177,6 +181,36 @@ def visible_from_cameras(
         surface = np.asarray(depth_maps[i], np.float64)[rows, cols]  # [n_hits]
         tolerance = margin + pixel_margin * dist[hits] / min(cameras.fx[i], cameras.fy[i])
         seen[todo[hits[dist[hits] <= surface + tolerance]]] = True
+    return seen
+
+
+def _visible_compiled(
+    points: np.ndarray, cameras: Cameras, depth_maps: Sequence[np.ndarray], margin: float, pixel_margin: float
+) -> np.ndarray:
+    """:func:`visible_from_cameras` for pinholes in compiled loops
+    (:func:`scenelabel.maps.visibility_kernels.visibility_kernel`, over the cores)."""
+    from scenelabel.maps import raycast_kernels, visibility_kernels  # numba: imported on first use
+
+    n = len(cameras)
+    distortion = np.asarray(cameras.distortion, np.float64).reshape(n, 4)
+    lens = np.column_stack([cameras.fx, cameras.fy, cameras.cx, cameras.cy, distortion])
+    limits = np.column_stack([
+        np.where(np.isfinite(cameras.near), cameras.near, 0.0),
+        np.where(np.isfinite(cameras.far), cameras.far, np.inf),
+        cameras.width,
+        cameras.height,
+    ]).astype(np.float64)
+    flat = [np.ascontiguousarray(d, np.float64).reshape(-1) for d in depth_maps]
+    offsets = np.concatenate([[0], np.cumsum([len(d) for d in flat])[:-1]]).astype(np.int64)
+    depth = np.concatenate(flat)
+    c2w = np.ascontiguousarray(cameras.c2w, np.float64)
+    margins = np.array([margin, pixel_margin])
+    seen = np.empty(len(points), dtype=bool)
+
+    def run(rows: slice) -> None:
+        visibility_kernels.visibility_kernel(points[rows], c2w, lens, limits, depth, offsets, margins, seen[rows])
+
+    raycast_kernels.in_threads(run, len(points))
     return seen
 
 

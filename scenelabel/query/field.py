@@ -413,7 +413,8 @@ class SemanticField:
         """Evaluate the field on a voxel lattice, in chunks (bounded memory): a semantic occupancy map.
 
         A voxel is occupied when crossing it at its largest density (over a regular pattern of
-        sub-samples) is at least half opaque, with the class of its densest sub-sample; with
+        sub-samples, read where density is near: :func:`scenelabel.query.mapping.evaluate_map_block`)
+        is at least half opaque, with the class of its densest sub-sample; with
         ``visibility`` (and training cameras in the checkpoint) the voxels a camera's surface lies
         in are occupied too and those no training camera observed are UNKNOWN. The rule, once:
         docs/conventions.md, "Density and occupancy" and "Observed space". The map's

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.ndimage import maximum_filter
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -34,9 +35,12 @@ if TYPE_CHECKING:
 __all__ = [
     "MAX_MAP_VOXELS",
     "MAX_SUBSAMPLES",
+    "REFINE_OCCUPANCY",
     "occupancy_map",
     "map_lattice",
     "evaluate_map_block",
+    "subsample_offsets",
+    "densest_subsample",
     "map_visibility_inputs",
     "occluders_outside",
     "map_metadata",
@@ -45,18 +49,33 @@ __all__ = [
 ]
 
 MAX_MAP_VOXELS = 256**3 * 4
-"""occupancy_map refuses grids larger than this (ask for a larger voxel size)."""
+"""occupancy_map refuses grids larger than this (67M voxels) unless told otherwise: a map held
+whole, then written with ``to_zarr``, peaks at several times the memory of writing it chunk by
+chunk (docs/map_export.md measures both); ask for a larger voxel size, or write the map chunk by
+chunk (:func:`scenelabel.query.map_writer.write_occupancy_map`)."""
 
 MAX_SUBSAMPLES = 4
 """At most this many sub-samples per voxel axis when evaluating a map."""
 
+REFINE_OCCUPANCY = 0.1
+"""A map voxel is read at its sub-samples only where its centre or a neighbour's centre has at
+least this occupancy (:func:`evaluate_map_block`), a fifth of the threshold 0.5: the field varies
+over its finest cell, about a voxel, so a surface between two centres raises theirs. Chosen on the
+bench room (where no occupied voxel of the full rule was lost); docs/map_ab.md compares the two
+rules on suite rooms."""
+
 
 def occupancy_map(
-    field: "SemanticField", voxel_size: float | None = None, bounds=None, chunk: int = 32, visibility: bool = True
+    field: "SemanticField",
+    voxel_size: float | None = None,
+    bounds=None,
+    chunk: int = 32,
+    visibility: bool = True,
+    max_voxels: int = MAX_MAP_VOXELS,
 ) -> OccupancyMap:
     """The whole map of ``field`` in memory: :meth:`SemanticField.occupancy_map` (the rule and the
-    arguments are documented there)."""
-    voxel_size, origin, shape = map_lattice(field, voxel_size, bounds)
+    other arguments are documented there); ``max_voxels``: refuse larger lattices (InputError)."""
+    voxel_size, origin, shape = map_lattice(field, voxel_size, bounds, max_voxels)
     label = np.full(shape, UNKNOWN, dtype=np.int16)
     occupancy = np.zeros(shape, dtype=np.float32)
     probs = np.zeros((*shape, field.class_map.num_classes), dtype=np.uint8)
@@ -106,6 +125,12 @@ def evaluate_map_block(
     """Evaluate one block of a map's lattice (the rule of :func:`occupancy_map`, before the
     visibility rule): label, occupancy, probs and confidence of its voxels.
 
+    Coarse to fine: the field is first read at the voxel centres of the block and a one-voxel
+    halo around it; a voxel is then read at its n³ sub-samples (:func:`subsample_offsets`) only
+    where its centre or a neighbour's (26-neighbourhood) has occupancy >= REFINE_OCCUPANCY, and
+    keeps its centre's reading elsewhere. The halo makes a block's answer independent of how the
+    lattice is split into blocks.
+
     Args:
         origin: [3] world centre of voxel [0, 0, 0] of the lattice.
         voxel_size: voxel edge, world units.
@@ -115,20 +140,30 @@ def evaluate_map_block(
         occupancy [bi, bj, bk] float32, probs [bi, bj, bk, C] uint8, confidence [bi, bj, bk]
         uint8 (0 where UNKNOWN).
     """
-    n_sub = int(np.clip(np.ceil(voxel_size / (0.5 * field.meta["finest_cell"])), 1, MAX_SUBSAMPLES))
-    offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
-    offsets *= voxel_size  # [S, 3] world offsets from the voxel centre
+    offsets = subsample_offsets(field, voxel_size)  # [S, 3]
     n_classes = field.class_map.num_classes
     shape = tuple(s.stop - s.start for s in block)
     centres = block_centers(origin, voxel_size, block)  # [V, 3]
     inside = inside_bounds(centres, field.aabb)  # [V]
-    pts = (centres[inside][:, None, :] + offsets[None]).reshape(-1, 3)
-    sig_n, sub_logits = field.sigmas_and_logits_n(field.frame.to_normalised(pts))
-    sig_n = sig_n.reshape(-1, len(offsets))  # [K, S], K voxels inside the bounds
-    densest = sig_n.argmax(-1)  # [K]
-    occ = -np.expm1(-sig_n.max(-1) * field.frame.scale * voxel_size)  # [K]
-    # only the densest sub-sample's distribution is kept: softmax just those
-    p = softmax64(sub_logits.reshape(len(sig_n), len(offsets), n_classes)[np.arange(len(sig_n)), densest])
+    if len(offsets) == 1:
+        sig_n, logits = field.sigmas_and_logits_n(field.frame.to_normalised(centres[inside]))
+    else:
+        halo = tuple(slice(s.start - 1, s.stop + 1) for s in block)
+        halo_centres = block_centers(origin, voxel_size, halo)
+        halo_inside = inside_bounds(halo_centres, field.aabb)
+        halo_sig = np.zeros(len(halo_centres))
+        halo_logits = np.zeros((len(halo_centres), n_classes), dtype=np.float32)
+        halo_sig[halo_inside], halo_logits[halo_inside] = field.sigmas_and_logits_n(
+            field.frame.to_normalised(halo_centres[halo_inside])
+        )
+        halo_occ = -np.expm1(-halo_sig * field.frame.scale * voxel_size).reshape(tuple(n + 2 for n in shape))
+        core = (slice(1, -1),) * 3
+        refine = (maximum_filter(halo_occ, size=3, mode="constant") >= REFINE_OCCUPANCY)[core].reshape(-1)[inside]
+        sig_n = halo_sig.reshape(halo_occ.shape)[core].reshape(-1)[inside]  # [K], K voxels inside the bounds
+        logits = halo_logits.reshape(*halo_occ.shape, n_classes)[core].reshape(len(centres), n_classes)[inside]
+        sig_n[refine], logits[refine] = densest_subsample(field, centres[inside][refine], offsets)
+    occ = -np.expm1(-sig_n * field.frame.scale * voxel_size)  # [K]
+    p = softmax64(logits)
     label = np.full(len(centres), UNKNOWN, dtype=np.int16)
     occupancy = np.zeros(len(centres), dtype=np.float32)
     probs = np.zeros((len(centres), n_classes), dtype=np.uint8)
@@ -138,6 +173,32 @@ def evaluate_map_block(
     probs[inside] = uint8_from_unit(p)
     confidence[inside] = uint8_from_unit(confidence_from_probs(p))
     return label.reshape(shape), occupancy.reshape(shape), probs.reshape(*shape, n_classes), confidence.reshape(shape)
+
+
+def subsample_offsets(field: "SemanticField", voxel_size: float) -> np.ndarray:
+    """[n³, 3] world offsets from a voxel's centre of its sub-samples: a regular n x n x n
+    pattern, n = ceil(voxel_size / (half the field's finest cell)) clipped to [1, MAX_SUBSAMPLES],
+    so the field is read at least twice per finest cell (one sample, the centre, when n = 1)."""
+    n_sub = int(np.clip(np.ceil(voxel_size / (0.5 * field.meta["finest_cell"])), 1, MAX_SUBSAMPLES))
+    offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
+    return offsets * voxel_size
+
+
+def densest_subsample(
+    field: "SemanticField", centres: np.ndarray, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """σ (normalised units) [K] and class logits [K, C] of each voxel at its densest sub-sample.
+
+    Args:
+        centres: [K, 3] world voxel centres.
+        offsets: [S, 3] world sub-sample offsets (:func:`subsample_offsets`).
+    """
+    pts = (centres[:, None, :] + offsets[None]).reshape(-1, 3)
+    sig_n, sub_logits = field.sigmas_and_logits_n(field.frame.to_normalised(pts))
+    sig_n = sig_n.reshape(len(centres), len(offsets))  # [K, S]
+    densest = sig_n.argmax(-1)  # [K]
+    rows = np.arange(len(centres))
+    return sig_n[rows, densest], sub_logits.reshape(len(centres), len(offsets), sub_logits.shape[-1])[rows, densest]
 
 
 def map_visibility_inputs(

@@ -51,7 +51,15 @@ from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
-from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, ssim, surface_points_from_depth
+from scenelabel.metrics import (
+    confusion_matrix,
+    depth_error,
+    miou,
+    psnr,
+    spurious_classes,
+    ssim,
+    surface_points_from_depth,
+)
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
@@ -192,6 +200,9 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         metrics["miou_smoothed"] = float(miou(conf_smooth)[0])
         metrics["per_class_iou"] = {
             str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
+        }
+        metrics["spurious_classes"] = {  # predicted on held-out views that do not show them: not in the mean
+            str(cid): int(n) for cid, n in zip(class_ids.tolist(), spurious_classes(conf)) if n > 0
         }
     if depth_errs:
         metrics["depth_error"] = float(np.mean([e["abs_rel"] for e in depth_errs]))

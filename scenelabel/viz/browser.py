@@ -149,9 +149,15 @@ class HeadlessBrowser:
                 the error's ``image`` attribute).
         """
         deadline = time.monotonic() + timeout
+        image = None
         while True:
-            image = self.screenshot()
-            if ready(image):
+            try:
+                image = self.screenshot()
+            except RuntimeError as error:  # a page still being swapped in after open(): not ready yet
+                if "Not attached to an active page" not in str(error) or time.monotonic() > deadline:
+                    raise
+                image = None
+            if image is not None and ready(image):
                 return image
             if time.monotonic() > deadline:
                 err = TimeoutError(f"the page did not show what was expected within {timeout:g} s")

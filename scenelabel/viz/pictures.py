@@ -16,7 +16,9 @@ Panel layout (:func:`panel_layout`, pixels): every panel is shown at the same si
 scaled by ``scale`` (an integer > 1 for images narrower than :data:`MIN_PANEL_WIDTH`, pixels kept
 square and sharp; ``MAX_PANEL_WIDTH / width`` for wider ones; else 1). The picture is
 ``n * panel_width + (n + 1) * GAP`` wide and ``TITLE_HEIGHT + CAPTION_HEIGHT + panel_height +
-GAP + legend rows * LEGEND_ROW_HEIGHT + GAP`` high (no legend rows without label panels).
+GAP + COLORBAR_HEIGHT + legend rows * LEGEND_ROW_HEIGHT + GAP`` high (no colour bar without depth
+panels, no legend rows without label panels). Each depth panel has its colour bar below it, in
+world units.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ __all__ = [
     "TITLE_HEIGHT",
     "CAPTION_HEIGHT",
     "LEGEND_ROW_HEIGHT",
+    "COLORBAR_HEIGHT",
     "LEGEND_ENTRY_WIDTH",
     "ERROR_RGB",
     "UNKNOWN_COLOR",
@@ -72,6 +75,8 @@ GAP = 8
 TITLE_HEIGHT = 34
 CAPTION_HEIGHT = 22
 LEGEND_ROW_HEIGHT = 22
+COLORBAR_HEIGHT = 30
+"""Pixels below the panels for the depth panels' colour bars (a bar and its tick labels)."""
 LEGEND_ENTRY_WIDTH = 150
 """Pixels per legend entry (a swatch and a name): the legend wraps into rows of this many per width."""
 DPI = 100
@@ -116,6 +121,7 @@ class PanelLayout(NamedTuple):
     scale: float
     legend_columns: int
     legend_rows: int
+    colorbar_height: int
 
 
 class Picture(NamedTuple):
@@ -296,8 +302,9 @@ def panel_layout(panels: Sequence[Panel], n_legend_entries: int) -> PanelLayout:
     width = n * pw + (n + 1) * GAP
     columns = max(1, (width - 2 * GAP) // LEGEND_ENTRY_WIDTH)
     rows = math.ceil(n_legend_entries / columns) if n_legend_entries else 0
-    height = TITLE_HEIGHT + CAPTION_HEIGHT + ph + GAP + rows * LEGEND_ROW_HEIGHT + GAP
-    return PanelLayout(width, height, pw, ph, scale, columns, rows)
+    bar = COLORBAR_HEIGHT if any(p.kind == "depth" for p in panels) else 0
+    height = TITLE_HEIGHT + CAPTION_HEIGHT + ph + GAP + bar + rows * LEGEND_ROW_HEIGHT + GAP
+    return PanelLayout(width, height, pw, ph, scale, columns, rows, bar)
 
 
 def _display(panel: Panel, colors: Mapping[int, tuple[int, int, int]]) -> tuple[np.ndarray, dict]:
@@ -356,9 +363,15 @@ def panel_figure(
                  ha="center", va="center", fontsize=9)
         ax = fig.add_axes(box(x, top, layout.panel_width, layout.panel_height))
         image, style = _display(panel, colors)
-        ax.imshow(image, interpolation="nearest" if layout.scale >= 1 else "antialiased", aspect="auto", **style)
+        smooth = "nearest" if layout.scale >= 1 else "antialiased"
+        drawn = ax.imshow(image, interpolation=smooth, aspect="auto", **style)
         ax.set_axis_off()
-    legend_top = top + layout.panel_height + GAP
+        if panel.kind == "depth":  # its colour bar, below it
+            bar = fig.add_axes(box(x + 0.1 * layout.panel_width, top + layout.panel_height + GAP / 2,
+                                   0.8 * layout.panel_width, 8), label=f"colour bar: {panel.caption}")
+            fig.colorbar(drawn, cax=bar, orientation="horizontal")
+            bar.tick_params(labelsize=7, length=2, pad=1)
+    legend_top = top + layout.panel_height + GAP + layout.colorbar_height
     for n, (code, name) in enumerate(legend):
         row, col = divmod(n, layout.legend_columns)
         x, y = GAP + col * LEGEND_ENTRY_WIDTH, legend_top + row * LEGEND_ROW_HEIGHT

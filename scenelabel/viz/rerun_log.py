@@ -14,7 +14,10 @@
 ``/world/meshes/<class>``                       Mesh3D per class (:func:`scenelabel.maps.exports.class_meshes`)
 ``/world/views/{train,held_out}/<view>``        Transform3D: camera-to-world
 ``.../<view>/image``                            Pinhole (OpenCV axes: ViewCoordinates RDF)
-``.../<view>/image/photo``, ``.../mask``        Image, SegmentationImage: the scene's photo and mask
+``.../<view>/image/photo``, ``.../mask``        Image (RGBA with the photo's alpha), SegmentationImage:
+                                                the scene's photo and mask
+``.../image/{depth,sensor_depth}``              DepthImage: the scene's true depth and its sensor
+                                                depth, where it has them
 ``.../<view>/image/render/{rgb,labels,depth}``  Image, SegmentationImage, DepthImage: the field's
                                                 render of a held-out view
 ``/training/<key>``                             Scalars of the build's training ``history`` on the
@@ -22,12 +25,18 @@
 ``/metrics``                                    TextDocument: the held-out metrics
 ==============================================  ====================================================
 
-Everything but the training curves is static. Segmentation images hold ``uint16`` class ids
-(rerun's class ids are unsigned): FREE, UNKNOWN and the masks' ``ignore_index`` become
-:data:`RERUN_FREE`, :data:`RERUN_UNKNOWN` and :data:`RERUN_IGNORED`, each annotated. Depth
-images hold rerun's z-depth (along the camera's optical axis, world units, ``meter=1``),
-converted from scenelabel's depth along each pixel's ray (through the camera's lens model); 0 where
-the render hit nothing (or, for a fisheye, the pixel looks 90° or more off the axis). rerun is imported inside the functions.
+Everything but the training curves is static. rerun's Pinhole has no lens distortion, so a view's
+images are resampled to the ideal pinhole with its fx, fy, cx, cy
+(:func:`scenelabel.geometry.lens.ideal_pinhole_image`; bilinear for colour, nearest for labels and
+depth, unchanged for a camera without distortion): what the view shows lines up with the 3D
+scene through the Pinhole drawn, a fisheye's view up to the pinhole's field of view.
+
+Segmentation images hold ``uint16`` class ids (rerun's class ids are unsigned): FREE, UNKNOWN and
+the masks' ``ignore_index`` become :data:`RERUN_FREE`, :data:`RERUN_UNKNOWN` and
+:data:`RERUN_IGNORED`, each annotated. Depth images hold rerun's z-depth (along the camera's
+optical axis, world units, ``meter=1``), converted from scenelabel's depth along each pixel's ray
+(through the camera's lens model); 0 where the render hit nothing, the depth has a hole, or (a
+fisheye) the pixel looks 90° or more off the axis. rerun is imported inside the functions.
 """
 
 from __future__ import annotations
@@ -41,6 +50,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.lens import ideal_pinhole_image
 from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid
 from scenelabel.maps.codes import FREE
 from scenelabel.maps.exports.meshes import class_meshes
@@ -280,10 +290,8 @@ def _log_camera(log: _Logger, base: str, cameras: Any, index: int, plane: float)
     cam = cameras[index]
     c2w = np.asarray(cam.c2w[0], np.float64)
     log.log(base, rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]))
-    # rerun's Pinhole has no lens distortion: a pinhole's k1 k2 p1 p2 are left out, and a fisheye
-    # (docs/conventions.md, "Camera models") is drawn as the pinhole with its fx, fy, cx, cy, exact
-    # at the image centre only (its frustum is drawn narrower than the lens sees, and beyond 90°
-    # not at all; the photo is shown as captured).
+    # rerun's Pinhole has no lens distortion: it is the ideal pinhole with the camera's fx, fy, cx,
+    # cy, and every image logged under it is resampled to that pinhole (_pinhole_view)
     k = np.array([[cam.fx[0], 0.0, cam.cx[0]], [0.0, cam.fy[0], cam.cy[0]], [0.0, 0.0, 1.0]])
     log.log(
         f"{base}/image",
@@ -292,15 +300,50 @@ def _log_camera(log: _Logger, base: str, cameras: Any, index: int, plane: float)
     )
 
 
+def _pinhole_view(
+    cameras: Any, index: int, image: np.ndarray, nearest: bool = False, fill: float = 0.0
+) -> np.ndarray:
+    """``image`` of camera ``index`` as its Pinhole in the recording shows it
+    (:func:`scenelabel.geometry.lens.ideal_pinhole_image`: unchanged for an undistorted pinhole)."""
+    cam = cameras[index]
+    lens = (cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
+    return ideal_pinhole_image(image, *lens, nearest=nearest, fill=fill)
+
+
+def _z_depth_image(cameras: Any, index: int, depth: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """A depth along each pixel's ray -> the recording's z-depth image [h, w] float32 (under the
+    view's Pinhole; 0 where ``valid`` is False, the depth is not finite, or z <= 0)."""
+    cam = cameras[index]
+    z = z_depth(depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
+    keep = np.isfinite(z) & (z > 0) & (True if valid is None else valid)  # a fisheye's pixels past 90° have no z
+    return _pinhole_view(cameras, index, np.where(keep, z, 0.0).astype(np.float32), nearest=True)
+
+
 def _log_render(log: _Logger, base: str, field: Any, cameras: Any, index: int) -> None:
     rr = log.rr
     out = field.render_camera(cameras, index)
-    cam = cameras[index]
-    z = z_depth(out.depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
-    depth = np.where((out.label >= 0) & (z > 0), z, 0.0)  # a fisheye's pixels past 90° have no z-depth
-    log.log(f"{base}/image/render/rgb", rr.Image(_uint8(out.rgb)))
-    log.log(f"{base}/image/render/labels", rr.SegmentationImage(rerun_class_ids(out.label)))
-    log.log(f"{base}/image/render/depth", rr.DepthImage(depth.astype(np.float32), meter=1.0))
+    labels = _pinhole_view(cameras, index, rerun_class_ids(out.label), nearest=True, fill=RERUN_UNKNOWN)
+    log.log(f"{base}/image/render/rgb", rr.Image(_pinhole_view(cameras, index, _uint8(out.rgb))))
+    log.log(f"{base}/image/render/labels", rr.SegmentationImage(labels))
+    depth = _z_depth_image(cameras, index, out.depth, out.label >= 0)
+    log.log(f"{base}/image/render/depth", rr.DepthImage(depth, meter=1.0))
+
+
+def _log_scene_view(log: _Logger, base: str, scene: Any, index: int) -> None:
+    """A scene's photo (RGBA where it has an alpha channel), mask, true depth and sensor depth."""
+    rr, cams = log.rr, scene.cameras
+    photo = _uint8(scene.images[index])
+    alphas = scene.image_alphas
+    if alphas is not None and alphas[index] is not None:
+        photo = np.concatenate([photo, _uint8(alphas[index])[..., None]], -1)
+    log.log(f"{base}/image/photo", rr.Image(_pinhole_view(cams, index, photo)))
+    if scene.labels[index] is not None:
+        mask = rerun_class_ids(scene.labels[index], scene.ignore_index)
+        mask = _pinhole_view(cams, index, mask, nearest=True, fill=RERUN_IGNORED)
+        log.log(f"{base}/image/mask", rr.SegmentationImage(mask))
+    for name, depths in (("depth", scene.depths), ("sensor_depth", scene.sensor_depths)):
+        if depths is not None and depths[index] is not None:
+            log.log(f"{base}/image/{name}", rr.DepthImage(_z_depth_image(cams, index, depths[index]), meter=1.0))
 
 
 def _log_views(log: _Logger, field: Any, scene: Any, render: bool, plane: float) -> tuple[int, int]:
@@ -328,10 +371,7 @@ def _log_views(log: _Logger, field: Any, scene: Any, render: bool, plane: float)
             continue
         base = f"world/views/{'held_out' if held_out else 'train'}/{log.part(name)}"
         _log_camera(log, base, scene.cameras, i, plane)
-        log.log(f"{base}/image/photo", log.rr.Image(_uint8(scene.images[i])))
-        if scene.labels[i] is not None:
-            mask = rerun_class_ids(scene.labels[i], scene.ignore_index)
-            log.log(f"{base}/image/mask", log.rr.SegmentationImage(mask))
+        _log_scene_view(log, base, scene, i)
         if held_out and render and field is not None:
             _log_render(log, base, field, scene.cameras, i)
             n_renders += 1

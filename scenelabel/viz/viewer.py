@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scenelabel.data.io.transforms_json import split_view_parts
 from scenelabel.errors import InputError
 from scenelabel.maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, unit_from_uint8
 from scenelabel.maps.exports.palette import class_palette, color_lookup
@@ -51,6 +52,7 @@ __all__ = [
     "BACKGROUND_COLOR",
     "MAX_POINTS",
     "find_view_images",
+    "view_image_candidates",
 ]
 
 DEFAULT_PORT = 8080
@@ -144,24 +146,21 @@ class ViewRender:
 # ----------------------------------------------------------------------------------------- cameras
 
 
-def find_view_images(
-    names: list[str], folders: list[Path], max_width: int = FRUSTUM_IMAGE_WIDTH
-) -> list[np.ndarray | None]:
-    """The training photos of ``names`` (image file stems), shrunk to at most ``max_width`` pixels.
+def find_view_images(candidates: list[list[Path]], max_width: int = FRUSTUM_IMAGE_WIDTH) -> list[np.ndarray | None]:
+    """Per view the first readable photo among its candidate paths, shrunk to at most ``max_width`` pixels.
 
     Args:
-        names: view names, as a checkpoint's ``train_views``.
-        folders: where to look, first match wins (each name as ``NAME.png``, ``.jpg``, ...).
+        candidates: per view, paths without a suffix (``NAME.png``, ``.jpg``, ... are tried), first
+            match wins (:func:`view_image_candidates`).
     Returns:
-        per name an [h, w, 3] uint8 image, or None where none was found or readable.
+        per view an [h, w, 3] uint8 image, or None where none was found or readable.
     """
     from PIL import Image
 
     out: list[np.ndarray | None] = []
-    folders = [f for f in folders if f.is_dir()]
-    for name in names:
+    for stems in candidates:
         image = None
-        for path in (folder / f"{name}{suffix}" for folder in folders for suffix in IMAGE_SUFFIXES):
+        for path in (stem.with_name(stem.name + suffix) for stem in stems for suffix in IMAGE_SUFFIXES):
             if not path.is_file():
                 continue
             try:
@@ -177,18 +176,35 @@ def find_view_images(
     return out
 
 
-def _build_image_folders(build_dir: Path, meta: dict) -> list[Path]:
-    """Where a build's scene images may be: the folder its checkpoint names (``scene_info``: the
-    poses file and the image folder), the scene folder's ``images/`` (a build writes to
-    SCENE/scenelabel by default), or ``../scene/images`` beside the build."""
+def view_image_candidates(
+    build_dir: Path, meta: dict, names: list[str], images: Path | None = None
+) -> list[list[Path]]:
+    """Where a build's training photos may be, per view name (paths without a suffix), in order:
+    ``images/NAME`` when a folder is given; the image folder the checkpoint names (``scene_info``:
+    the poses file and its image folder); the scene folder's ``images/`` (a build writes to
+    SCENE/scenelabel by default) or ``../scene/images`` beside the build; and for the split layout
+    (``scene_info["splits"]``) a view ``SPLIT_STEM``'s ``SPLIT_FOLDER/STEM``
+    (:func:`scenelabel.data.io.transforms_json.split_view_parts`).
+    """
     info = meta.get("scene_info") or {}
-    folders = []
+    folders = [Path(images)] if images else []
     source, image_folder = info.get("source"), info.get("image_folder") or "images"
+    root = None
     if isinstance(source, str) and isinstance(image_folder, str):
         root = Path(source) if Path(source).is_dir() else Path(source).parent
         folders += [root / image_folder, root.parent / image_folder]
     parent = build_dir.resolve().parent
-    return folders + [parent / "images", parent / "scene" / "images"]
+    folders += [parent / "images", parent / "scene" / "images"]
+    splits = info.get("splits") if isinstance(info.get("splits"), dict) else {}
+    out = []
+    for name in names:
+        stems = [folder / name for folder in folders]
+        parts = split_view_parts(name, splits)
+        if parts is not None and root is not None:
+            split, stem = parts
+            stems.append(root / str(splits[split].get("image_folder", split)) / stem)
+        out.append(stems)
+    return out
 
 
 def _depth_colors(depth: np.ndarray) -> np.ndarray:
@@ -281,11 +297,10 @@ class ViewerApp:
 
             field = SemanticField.load(source, device)
             occ = own_map(source, voxel_size) or field.occupancy_map(voxel_size)
-            folders = ([Path(images)] if images else []) + _build_image_folders(source, field.meta)
             names = list(field.meta.get("train_views") or [])
             cameras = field.training_cameras()
             found = cameras is not None and len(names) == len(cameras)
-            view_images = find_view_images(names, folders) if found else None
+            view_images = find_view_images(view_image_candidates(source, field.meta, names, images)) if found else None
             name = source.resolve().name
             name = source.resolve().parent.name if name == "scenelabel" else name  # SCENE/scenelabel: the scene
             return cls(occ, field, view_images, title=f"scenelabel: {name}")

@@ -3,8 +3,8 @@
 nerfstudio's ``transforms.json`` (written by ``ns-process-data`` for Polycam, COLMAP with
 ``--use-sfm-depth``, or by hand for Record3D / ARKit exports) names them per frame:
 
-- ``depth_file_path``: a depth image, 16-bit or 8-bit PNG, float EXR (read by OpenCV when its
-  build has OpenEXR), float TIFF, or ``.npy``. ``value = raw * depth_unit_scale_factor`` for every
+- ``depth_file_path``: a depth image, 16-bit or 8-bit PNG, float EXR (half or full float, read
+  with the OpenEXR bindings), float TIFF, or ``.npy``. ``value = raw * depth_unit_scale_factor`` for every
   format (nerfstudio multiplies ``.npy`` too); the factor is read per frame, else at the top
   level, else nerfstudio's default 0.001 (millimetres to metres). Raw values that are zero,
   negative, NaN or infinite are holes (NaN). The file holds **z-depth** (along the camera's optical
@@ -25,11 +25,8 @@ Every problem a user can cause raises :class:`scenelabel.errors.InputError` nami
 
 from __future__ import annotations
 
-import os
-import re
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -191,22 +188,47 @@ def check_same_aspect(size: tuple[int, int], image_size: tuple[int, int], path: 
 # depth
 
 
-@lru_cache(maxsize=1)
-def _opencv_has_openexr() -> bool:
-    """Whether the installed OpenCV was built with OpenEXR (its build information says so)."""
-    import cv2
+EXR_DEPTH_CHANNELS = ("Z", "depth", "Y")
+"""The channel a multi-channel EXR's depth is read from, the first one present (``Z`` is OpenEXR's
+depth channel); an EXR with none of them needs one channel, or all its channels equal."""
 
-    match = re.search(r"OpenEXR:\s*(\S+)", cv2.getBuildInformation())
-    return match is not None and match.group(1).upper() != "NO"
+
+def read_exr_channel(path: Path) -> np.ndarray:
+    """An EXR depth image's values, [h, w] float32 (half floats widened), with the OpenEXR bindings:
+    its only channel, else the first of :data:`EXR_DEPTH_CHANNELS` it has, else its channels when
+    they are all equal (a grey image stored as R, G, B).
+
+    Raises:
+        InputError: unreadable, or several different channels none of which is named for depth.
+    """
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            channels = {name: np.asarray(channel.pixels) for name, channel in exr.channels().items()}
+    except Exception as error:  # the bindings raise RuntimeError (and others) for files they cannot read
+        raise InputError(f"cannot read the EXR depth ({type(error).__name__}: {error})", path) from None
+    named = [channels[name] for name in EXR_DEPTH_CHANNELS if name in channels]
+    values = list(channels.values())
+    if named:
+        raw = named[0]
+    elif values and all(np.array_equal(values[0], v, equal_nan=True) for v in values[1:]):
+        raw = values[0]
+    else:
+        raise InputError(
+            f"depth EXR files need one channel or one named {', '.join(EXR_DEPTH_CHANNELS)}; this one has "
+            f"{', '.join(sorted(channels)) or 'none'}",
+            path,
+        )
+    return raw.astype(np.float32) if raw.dtype == np.float16 else raw
 
 
 def read_depth_raw(path: Path) -> np.ndarray:
     """A depth file's raw values as stored, [h, w] (its own dtype: uint8, uint16, float32, ...).
 
-    PNG (8 or 16 bit), TIFF and EXR are read with OpenCV (``IMREAD_UNCHANGED``, so 16-bit values
-    stay true); EXR needs an OpenCV built with OpenEXR, and ``OPENCV_IO_ENABLE_OPENEXR=1`` is set
-    before the first EXR is read (OpenCV reads the variable once, at its first EXR decode: a
-    function-static in imgcodecs' grfmt_exr.cpp). ``.npy`` with ``np.load`` (no pickle).
+    PNG (8 or 16 bit) and TIFF are read with OpenCV (``IMREAD_UNCHANGED``, so 16-bit values stay
+    true); EXR with the OpenEXR bindings (:func:`read_exr_channel`; the OpenCV wheels are built
+    without OpenEXR); ``.npy`` with ``np.load`` (no pickle).
 
     Raises:
         InputError: missing, unsupported suffix, unreadable, not real-valued or not single-channel.
@@ -224,20 +246,14 @@ def read_depth_raw(path: Path) -> np.ndarray:
             raise InputError(f"cannot read the depth .npy ({error})", path) from None
         if not (np.issubdtype(raw.dtype, np.floating) or np.issubdtype(raw.dtype, np.integer)) or raw.dtype == bool:
             raise InputError(f"depth must be a real-valued array, got dtype {raw.dtype}", path)
+    elif suffix == ".exr":
+        raw = read_exr_channel(path)
     else:
         import cv2
 
-        if suffix == ".exr":
-            if not _opencv_has_openexr():
-                raise InputError(
-                    "cannot read EXR depth: the installed OpenCV is built without OpenEXR; convert it to a 16-bit PNG "
-                    "(with depth_unit_scale_factor) or a .npy",
-                    path,
-                )
-            os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
         try:
             raw = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error as error:  # e.g. EXR decoding disabled: an EXR was read before the variable was set
+        except cv2.error as error:
             message = str(error).strip().splitlines()[-1] if str(error).strip() else type(error).__name__
             raise InputError(f"cannot read the depth image (OpenCV: {message})", path) from None
         if raw is None:

@@ -78,6 +78,7 @@ __all__ = [
     "load_split_transforms",
     "split_files",
     "split_view_name",
+    "split_view_parts",
 ]
 
 #: The file this loader reads from a scene folder.
@@ -433,6 +434,15 @@ def split_view_name(split: str, name: str) -> str:
     return f"{split}_{name}"
 
 
+def split_view_parts(name: str, splits) -> tuple[str, str] | None:
+    """(split, image stem) of a view named by :func:`split_view_name`, for the ``splits`` given
+    (their names); None for a name of none of them."""
+    for split in splits:
+        if name.startswith(f"{split}_"):
+            return split, name[len(split) + 1 :]
+    return None
+
+
 def load_transforms(path: str | Path, downscale: int = 1, world_frame: str = "transforms") -> Scene:
     """Load a transforms.json scene into scenelabel's conventions (see the module docstring).
 
@@ -491,7 +501,7 @@ def load_split_transforms(folder: str | Path, downscale: int = 1, world_frame: s
         world_frame: as for :func:`load_transforms`, applied to each file.
     Returns:
         the Scene; ``info["split_source"]`` names the files, ``info["splits"]`` holds per split its
-        file, views, frames_listed and skipped_frames.
+        file, views, frames_listed, skipped_frames and image_folder (where its images are).
     Raises:
         InputError: no ``transforms_train.json``, no training view with an image file, fewer than
             2 views in all, or any problem of a file (as :func:`load_transforms`).
@@ -520,7 +530,7 @@ def load_split_transforms(folder: str | Path, downscale: int = 1, world_frame: s
         part = _load_transforms_file(path, downscale, min_views=1, world_frame=world_frame)
         parts.append((split, part))
         counts[split] = {"file": path.name, "views": len(part), "frames_listed": listed,
-                         "skipped_frames": part.info["skipped_frames"]}
+                         "skipped_frames": part.info["skipped_frames"], "image_folder": part.info["image_folder"]}
     n_views = sum(len(part) for _, part in parts)
     if n_views < 2:
         raise InputError(f"only {n_views} view has an image file in {', '.join(p.name for p in files.values())}; "
