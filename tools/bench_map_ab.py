@@ -128,9 +128,9 @@ def main() -> None:
     parser.add_argument("--scenes", nargs="+", default=list(DEFAULT_SCENES))
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "map_ab.md")
     args = parser.parse_args()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
-                           cwd=REPO).stdout.strip()
-    result = {"base": _rev(args.base), "new": _rev("HEAD") + (" with uncommitted changes" if dirty else ""), "rows": []}
+    from bench_suite import code_version  # tools/bench_suite.py, beside this script
+
+    result = {"base": _rev(args.base), "new": code_version(), "rows": []}
     with tempfile.TemporaryDirectory() as workdir:
         work = Path(workdir)
         base_tree = work / "base"

@@ -153,9 +153,10 @@ def write_timings(path: Path, build_dir: Path, lines: list[str]) -> None:
     """The run's measurements as a small markdown page (one run: the machine and code are recorded)."""
     import os
     import platform
-    import subprocess
 
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO).stdout.strip()
+    from bench_suite import code_version  # tools/bench_suite.py, beside this script
+
+    commit = code_version()
     head = [
         "# Viewer timings",
         "",
