@@ -7,6 +7,7 @@ they never show a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import warnings
@@ -127,8 +128,6 @@ EXIT_SCENES_FAILED = 1
 
 def _build_many(args: argparse.Namespace) -> int:
     """``build`` of several scenes (or of one on a Dask cluster): independent jobs and a summary table."""
-    import contextlib
-
     from scenelabel.train.batch import SUMMARY_MD, build_many, summary_table
 
     if args.resume or args.segmenter:
@@ -273,8 +272,6 @@ def _dask_client(stack, workers: int | None, scheduler: str | None):
 def _export_chunked(args: argparse.Namespace, source: Path, out: Path) -> None:
     """``export BUILD OUT.zarr``: the map evaluated chunk by chunk into the store (bounded memory),
     in this process or on a Dask cluster (:func:`scenelabel.query.map_writer.write_occupancy_map`)."""
-    import contextlib
-
     import zarr
 
     from scenelabel.query.map_writer import write_occupancy_map
@@ -362,14 +359,25 @@ def _cmd_upgrade_checkpoint(args: argparse.Namespace) -> None:
         print(f"{path} is in checkpoint format {FORMAT_VERSION} already; nothing to do")
 
 
+VIEW_FIELD_WAIT = 10.0
+"""``scenelabel view BUILD``: seconds the field waits for a browser to connect before it loads anyway."""
+
+
 def _cmd_view(args: argparse.Namespace) -> None:
     """Serve the web viewer of a build or a map until Ctrl-C (or --timeout)."""
     from scenelabel.viz.viewer import ViewerApp
 
-    app = ViewerApp.open(args.source, voxel_size=args.voxel_size, images=args.images, device=args.device)
+    # a build's own map is served first; its field (torch, the checkpoint) is loaded once a browser has
+    # the page (or after VIEW_FIELD_WAIT seconds), so that the two do not start on the same cores at once
+    app = ViewerApp.open(args.source, voxel_size=args.voxel_size, images=args.images, device=args.device, field_later=True)
     url = app.start(args.port, args.host)
     print(f"scenelabel: viewer of {args.source} at {url} (Ctrl-C to stop)", flush=True)
     try:
+        if app.field_pending:
+            with contextlib.suppress(TimeoutError):  # no browser yet: load it anyway
+                app.wait_for_client(VIEW_FIELD_WAIT if args.timeout is None else min(VIEW_FIELD_WAIT, args.timeout))
+        if app.load_field():
+            print("scenelabel: field loaded (training cameras, queries and renders by the field)", flush=True)
         app.serve_forever(args.timeout)
     except KeyboardInterrupt:
         print("scenelabel: viewer stopped", flush=True)

@@ -42,6 +42,8 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"distortion_weight": True}},
         {"train": {"solid_weight": -1.0}},
         {"train": {"solid_weight": float("inf")}},
+        {"train": {"solid_depth_steps": 0.0}},
+        {"train": {"solid_depth_steps": float("nan")}},
         {"train": {"background": "blue"}},
         {"train": {"distortion_start": 1.5}},
         {"train": {"distortion_start": -0.1}},
@@ -50,7 +52,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|background|distortion_start"):
         preset("fast", overrides)
 
 

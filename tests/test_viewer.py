@@ -13,7 +13,7 @@ import pytest
 from scenelabel import FREE, UNKNOWN, OccupancyMap
 from scenelabel.errors import InputError
 from scenelabel.viz.browser import HeadlessBrowser, find_chromium
-from scenelabel.viz.viewer import ViewerApp
+from scenelabel.viz.viewer import ViewerApp, frustum_segments
 from scenelabel.viz.viewer_gui import rotation_from_wxyz, wxyz_from_rotation
 
 CLASSES = {1: "floor", 3: "box", 5: "chair"}
@@ -170,7 +170,9 @@ def test_a_build_is_shown_with_its_field_and_cameras(tiny_build):
     assert app.view_images is not None and all(im is not None and im.shape[2] == 3 for im in app.view_images)
     app.start(port=0)
     try:
-        assert len(app.frustum_nodes) == len(field.training_cameras())
+        n_cameras = len(field.training_cameras())
+        assert app.frustum_nodes[0].points.shape == (10 * n_cameras, 2, 3)  # every frustum in one node
+        assert len(app.frustum_nodes) == 1 + n_cameras  # and each photo on its frustum
         app.set_class_visible(UNKNOWN, True)
         for cid, node in app.class_nodes.items():
             assert len(node.points) == np.count_nonzero(app.map.label == cid)
@@ -197,6 +199,43 @@ def test_a_build_is_shown_with_its_field_and_cameras(tiny_build):
         app.stop()
 
 
+def test_a_build_served_before_its_field_is_loaded(tiny_build):
+    """``open(field_later=True)`` serves the build's own map at once; load_field adds the field's
+    cameras, panels and answers (what ``scenelabel view`` does while the page opens)."""
+    app = ViewerApp.open(tiny_build, field_later=True)
+    assert app.field is None and app.cameras is None
+    now = ViewerApp.open(tiny_build)
+    np.testing.assert_array_equal(app.map.label, now.map.label)
+    app.start(port=0)
+    try:
+        assert not app.frustum_nodes and "query_button" not in app.gui  # the map alone so far
+        assert app.load_field() and not app.load_field()  # loaded once
+        assert app.field is not None and app.palette == now.palette
+        assert len(app.frustum_nodes) == 1 + len(app.cameras) and "query_button" in app.gui
+        xyz = np.mean(app.field.aabb, axis=0)
+        assert app.query(xyz).source == "field" and app.query(xyz).label == now.query(xyz).label
+    finally:
+        app.stop()
+
+
+def test_frustum_segments_outline_the_image():
+    """The rectangle's corners lie on the rays of the image corners, at the depth that gives the
+    pyramid viser's volume for the scale; the four edges start at the camera centre."""
+    w, h, f = 160, 120, 150.0
+    c2w = np.eye(4)
+    c2w[:3, :3] = rotation_from_wxyz(np.array([0.9, 0.1, -0.3, 0.2]))
+    c2w[:3, 3] = (1.0, -2.0, 0.5)
+    fov = 2 * np.arctan(0.5 * h / f)
+    segments, (half_w, half_h, depth) = frustum_segments(c2w, fov, w / h, 0.3)
+    assert segments.shape == (10, 2, 3)
+    np.testing.assert_allclose(segments[:4, 0], np.tile(c2w[:3, 3], (4, 1)), atol=1e-6)
+    local = (segments[:4, 1] - c2w[:3, 3]) @ c2w[:3, :3]  # corners in the camera frame
+    pixels = local[:, :2] / local[:, 2:] * f + [w / 2, h / 2]
+    np.testing.assert_allclose(pixels, [[0, 0], [w, 0], [w, h], [0, h]], atol=1e-3)
+    np.testing.assert_allclose(local[:, 2], depth, rtol=1e-6)
+    assert half_w * half_h * depth / 3 == pytest.approx(0.3**3)
+
+
 def test_open_refuses_what_it_cannot_show(tmp_path, tiny_build):
     with pytest.raises(InputError, match="neither a build folder"):
         ViewerApp.open(tmp_path)
@@ -204,6 +243,16 @@ def test_open_refuses_what_it_cannot_show(tmp_path, tiny_build):
     with pytest.raises(InputError, match="voxel size"):
         ViewerApp.open(path, voxel_size=0.2)
     assert ViewerApp.open(path).field is None
+
+
+def test_view_command_serves_a_build_and_then_loads_its_field(tiny_build):
+    proc = subprocess.run(
+        [sys.executable, "-m", "scenelabel", "view", str(tiny_build), "--port", "0", "--timeout", "1"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert " at http://127.0.0.1:" in lines[0] and "field loaded" in lines[1]
 
 
 def test_view_command_serves_until_its_timeout(tmp_path):

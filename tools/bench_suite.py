@@ -50,6 +50,10 @@ VARIANTS: dict[str, dict] = {
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
     "phone-depth": {"capture": "phone-depth"},
     "phone-depth-rgbd": {"capture": "phone-depth", "preset": "rgbd"},
+    "phone-depth-rgbd-1200": {"capture": "phone-depth", "preset": "rgbd", "train": {"steps": 1200, "time_budget": 80.0}},
+    "phone-depth-1600": {"capture": "phone-depth", "train": {"steps": 1600}},
+    "phone-depth-no-solid": {"capture": "phone-depth", "train": {"depth_solid_weight": 0.0}},
+    "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (
@@ -342,7 +346,10 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         *(["Variants `phone-depth*`: the room also carries depth as a phone gives it",
            "(`scenelabel.data.synthetic.add_phone_depth`: z-depth PNGs at quarter resolution, 1.5 % noise, holes at",
            "depth edges, on dark surfaces, beyond 5 m and 1 % at random), which the build trains on (`train.depth_weight`,",
-           "`train.depth_solid_weight`); `phone-depth` with the default preset, `phone-depth-rgbd` with `--preset rgbd`.",
+           "`train.depth_solid_weight`); `phone-depth` with the default preset, `phone-depth-rgbd` with `--preset rgbd`",
+           "(`-1200`: with 1200 steps, at most 80 s of training), `phone-depth-1600` the default preset with 1600 steps.",
+           "The solid-interior term's layer: 0.5 marching steps",
+           "deep (`train.solid_depth_steps`); `phone-depth-solid-2` as before, 2 steps; `phone-depth-no-solid` without the term.",
            ""] if with_depth else []),
         f"![suite]({plot.name})",
         "",

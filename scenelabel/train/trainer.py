@@ -59,10 +59,6 @@ TV_SLAB = 16
 """Vertex rows (first grid axis) of the random slab whose total variation is added each step
 (``train.tv_weight``): a stochastic estimate of the whole grid's mean, at a fraction of the cost."""
 
-SOLID_DEPTH_STEPS = 2.0
-"""The solid-interior term's points lie up to this many marching steps past where each training ray
-becomes opaque (``RayBundleOutput.t_opaque``): inside the surface it renders, thin objects included."""
-
 SOLID_START = 0.25
 """The solid-interior term is on from this fraction of the run (:meth:`Trainer.progress`): surfaces
 first, so that the points it fills lie behind surfaces, not in early fog."""
@@ -386,7 +382,7 @@ class Trainer:
         solid_weight = self.solid_weight
         if solid_weight > 0 and self.progress() >= SOLID_START:
             u = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
-            solid_offsets = u * SOLID_DEPTH_STEPS * self.marching.step
+            solid_offsets = u * tc.solid_depth_steps * self.marching.step
         r = self.rays
         background = self.background
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel

@@ -10,7 +10,8 @@ with this package: matplotlib, rerun and viser are imported inside the functions
   meshes, views, renders, training curves) as a rerun recording (``export BUILD out.rrd``).
 - :mod:`scenelabel.viz.viewer`: :class:`~scenelabel.viz.viewer.ViewerApp`, the web viewer of a build
   or a map (``scenelabel view``, viser; docs/look.md); its panels and the browser camera's pose in
-  :mod:`scenelabel.viz.viewer_gui`.
+  :mod:`scenelabel.viz.viewer_gui`, its training cameras' photos and frusta in
+  :mod:`scenelabel.viz.viewer_cameras`.
 - :mod:`scenelabel.viz.browser`: a headless Chromium over the DevTools protocol, to check and
   picture the viewer (tests, ``tools/screenshots.py``).
 """

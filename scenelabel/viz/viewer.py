@@ -28,11 +28,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from scenelabel.data.io.transforms_json import split_view_parts
 from scenelabel.errors import InputError
 from scenelabel.maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, unit_from_uint8
 from scenelabel.maps.exports.palette import class_palette, color_lookup
 from scenelabel.query.build_outputs import own_map
+from scenelabel.viz.viewer_cameras import find_view_images, frustum_segments, view_image_candidates
 from scenelabel.viz.viewer_gui import MARKER_COLOR, add_panels, camera_pose, wxyz_from_rotation
 
 if TYPE_CHECKING:
@@ -53,6 +53,7 @@ __all__ = [
     "MAX_POINTS",
     "find_view_images",
     "view_image_candidates",
+    "frustum_segments",
 ]
 
 DEFAULT_PORT = 8080
@@ -67,9 +68,6 @@ BACKGROUND_COLOR = (255, 255, 255)
 """Pixels whose ray met nothing (FREE) in rendered label and depth images."""
 MAX_POINTS = 2_000_000
 """At most this many voxels of one class (or UNKNOWN) go to the browser; more are thinned evenly."""
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG")
-FRUSTUM_IMAGE_WIDTH = 160
-"""Training photos are shrunk to this width on the frusta."""
 
 
 # ----------------------------------------------------------------------------------------- answers
@@ -143,70 +141,6 @@ class ViewRender:
     seconds: float
 
 
-# ----------------------------------------------------------------------------------------- cameras
-
-
-def find_view_images(candidates: list[list[Path]], max_width: int = FRUSTUM_IMAGE_WIDTH) -> list[np.ndarray | None]:
-    """Per view the first readable photo among its candidate paths, shrunk to at most ``max_width`` pixels.
-
-    Args:
-        candidates: per view, paths without a suffix (``NAME.png``, ``.jpg``, ... are tried), first
-            match wins (:func:`view_image_candidates`).
-    Returns:
-        per view an [h, w, 3] uint8 image, or None where none was found or readable.
-    """
-    from PIL import Image
-
-    out: list[np.ndarray | None] = []
-    for stems in candidates:
-        image = None
-        for path in (stem.with_name(stem.name + suffix) for stem in stems for suffix in IMAGE_SUFFIXES):
-            if not path.is_file():
-                continue
-            try:
-                with Image.open(path) as im:
-                    im = im.convert("RGB")
-                    if im.width > max_width:
-                        im = im.resize((max_width, max(1, round(im.height * max_width / im.width))))
-                    image = np.asarray(im, np.uint8)
-                break
-            except OSError:
-                continue
-        out.append(image)
-    return out
-
-
-def view_image_candidates(
-    build_dir: Path, meta: dict, names: list[str], images: Path | None = None
-) -> list[list[Path]]:
-    """Where a build's training photos may be, per view name (paths without a suffix), in order:
-    ``images/NAME`` when a folder is given; the image folder the checkpoint names (``scene_info``:
-    the poses file and its image folder); the scene folder's ``images/`` (a build writes to
-    SCENE/scenelabel by default) or ``../scene/images`` beside the build; and for the split layout
-    (``scene_info["splits"]``) a view ``SPLIT_STEM``'s ``SPLIT_FOLDER/STEM``
-    (:func:`scenelabel.data.io.transforms_json.split_view_parts`).
-    """
-    info = meta.get("scene_info") or {}
-    folders = [Path(images)] if images else []
-    source, image_folder = info.get("source"), info.get("image_folder") or "images"
-    root = None
-    if isinstance(source, str) and isinstance(image_folder, str):
-        root = Path(source) if Path(source).is_dir() else Path(source).parent
-        folders += [root / image_folder, root.parent / image_folder]
-    parent = build_dir.resolve().parent
-    folders += [parent / "images", parent / "scene" / "images"]
-    splits = info.get("splits") if isinstance(info.get("splits"), dict) else {}
-    out = []
-    for name in names:
-        stems = [folder / name for folder in folders]
-        parts = split_view_parts(name, splits)
-        if parts is not None and root is not None:
-            split, stem = parts
-            stems.append(root / str(splits[split].get("image_folder", split)) / stem)
-        out.append(stems)
-    return out
-
-
 def _depth_colors(depth: np.ndarray) -> np.ndarray:
     """[H, W] depths -> [H, W, 3] uint8: near bright yellow to far dark purple (matplotlib's
     magma, reversed), white where the depth is not finite."""
@@ -219,6 +153,19 @@ def _depth_colors(depth: np.ndarray) -> np.ndarray:
         t = np.clip((depth[finite] - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
         out[finite] = (colormaps["magma"](0.95 - 0.85 * t)[:, :3] * 255).astype(np.uint8)
     return out
+
+
+def _build_field(
+    source: Path, images: str | Path | None, device: str | None
+) -> tuple["SemanticField", list[np.ndarray | None] | None]:
+    """A build folder's field and its training views' photos (None when they are not found)."""
+    from scenelabel.query.field import SemanticField
+
+    field = SemanticField.load(source, device)
+    names = list(field.meta.get("train_views") or [])
+    cameras = field.training_cameras()
+    found = cameras is not None and len(names) == len(cameras)
+    return field, (find_view_images(view_image_candidates(source, field.meta, names, images)) if found else None)
 
 
 # ----------------------------------------------------------------------------------------- the app
@@ -246,22 +193,16 @@ class ViewerApp:
         title: str = "scenelabel",
     ):
         self.map = occ_map
-        self.field = field
         self.title = title
-        self.classes = dict(occ_map.classes)
-        if field is not None:
-            self.classes.update(field.classes)
-        colors = dict(occ_map.class_colors or {})
-        if field is not None:
-            colors.update(field.meta.get("class_colors") or {})
-        self.palette = class_palette(self.classes, {k: v for k, v in colors.items() if k in self.classes})
-        self.cameras: Cameras | None = None if field is None else field.training_cameras()
-        self.view_images = view_images
+        self.field: SemanticField | None = None
+        self.cameras: Cameras | None = None
+        self.view_images: list[np.ndarray | None] | None = None
+        self._set_field(field, view_images)
         self.server: Any = None
         self.url: str | None = None
         self.class_nodes: dict[int, Any] = {}  # class id (or UNKNOWN) -> point cloud handle
         self.class_checkboxes: dict[int, Any] = {}
-        self.frustum_nodes: list[Any] = []
+        self.frustum_nodes: list[Any] = []  # the frusta's line node, then one image node per photo
         self.mesh_nodes: dict[int, Any] = {}
         self.height_slider: Any = None
         self.gui: dict[str, Any] = {}
@@ -271,15 +212,29 @@ class ViewerApp:
         self._lock = threading.Lock()  # baking
         self._scene_lock = threading.RLock()  # the point clouds
         self._sent: dict[int, int] = {}  # class id -> how many points its cloud holds in the browser
+        self._pending_field: tuple[Path, Path | None, str | None] | None = None  # open(..., field_later=True)
+        self._extent = 1.0  # the diagonal of the occupied voxels' box (sizes the frusta)
         self._centres = self._voxel_centres()
         self.voxel_counts = {cid: int(np.count_nonzero(occ_map.label == cid)) for cid in self._centres}
         """Class id (and UNKNOWN) -> its voxels in the map (the scene shows at most MAX_POINTS of them)."""
         self._height = float(occ_map.bounds[1][2])
 
+    def _set_field(self, field: "SemanticField | None", view_images: list[np.ndarray | None] | None) -> None:
+        """The field, its classes and colours (beside the map's) and its training cameras."""
+        self.field = field
+        self.classes = dict(self.map.classes)
+        colors = dict(self.map.class_colors or {})
+        if field is not None:
+            self.classes.update(field.classes)
+            colors.update(field.meta.get("class_colors") or {})
+        self.palette = class_palette(self.classes, {k: v for k, v in colors.items() if k in self.classes})
+        self.cameras = None if field is None else field.training_cameras()
+        self.view_images = view_images
+
     # ------------------------------------------------------------------ construction
     @classmethod
     def open(cls, source: str | Path, voxel_size: float | None = None, images: str | Path | None = None,
-             device: str | None = None) -> "ViewerApp":
+             device: str | None = None, field_later: bool = False) -> "ViewerApp":
         """A viewer of a build folder (its field, its map, its cameras) or of a map ``.zarr``.
 
         Args:
@@ -288,27 +243,48 @@ class ViewerApp:
                 is at least as new as the checkpoint, else the field's default voxel size).
             images: folder of the scene's photos for the frusta (default: looked for beside the build).
             device: 'cpu' or 'cuda' for the field (default: the best).
+            field_later: for a build whose own map serves: open with the map alone and leave the
+                field (torch, the checkpoint) to :meth:`load_field`, so that the map can be served
+                first (``scenelabel view``); otherwise the field is loaded now.
         Raises:
             InputError: neither a build folder nor a map; ``voxel_size`` with a map.
         """
         source = Path(source)
         if (source / "checkpoint.pt").is_file():
-            from scenelabel.query.field import SemanticField
-
-            field = SemanticField.load(source, device)
-            occ = own_map(source, voxel_size) or field.occupancy_map(voxel_size)
-            names = list(field.meta.get("train_views") or [])
-            cameras = field.training_cameras()
-            found = cameras is not None and len(names) == len(cameras)
-            view_images = find_view_images(view_image_candidates(source, field.meta, names, images)) if found else None
             name = source.resolve().name
             name = source.resolve().parent.name if name == "scenelabel" else name  # SCENE/scenelabel: the scene
-            return cls(occ, field, view_images, title=f"scenelabel: {name}")
+            occ = own_map(source, voxel_size)
+            if field_later and occ is not None:
+                app = cls(occ, title=f"scenelabel: {name}")
+                app._pending_field = (source, None if images is None else Path(images), device)
+                return app
+            field, view_images = _build_field(source, images, device)
+            return cls(occ or field.occupancy_map(voxel_size), field, view_images, title=f"scenelabel: {name}")
         if source.is_dir() and ((source / "zarr.json").is_file() or (source / ".zgroup").is_file()):
             if voxel_size is not None:
                 raise InputError("--voxel-size applies to a build folder; a map keeps its own voxel size", path=source)
             return cls(OccupancyMap.from_zarr(source), title=f"scenelabel: {source.name}")
         raise InputError("neither a build folder (with checkpoint.pt) nor an occupancy map (.zarr folder)", path=source)
+
+    @property
+    def field_pending(self) -> bool:
+        """Whether ``open(..., field_later=True)`` left a field for :meth:`load_field`."""
+        return self._pending_field is not None
+
+    def load_field(self) -> bool:
+        """Load the field an ``open(..., field_later=True)`` left for later, and, when serving, add
+        what needs it: the training cameras and the panels (queries and renders by the field).
+        Returns whether a field was loaded (False: none was pending)."""
+        if self._pending_field is None:
+            return False
+        source, images, device = self._pending_field
+        field, view_images = _build_field(source, images, device)
+        self._pending_field = None
+        self._set_field(field, view_images)  # the build's own map: the same classes and colours
+        if self.server is not None:
+            self._add_frusta(self.server)
+            add_panels(self, self.server)
+        return True
 
     def _voxel_centres(self) -> dict[int, np.ndarray]:
         """Class id (and UNKNOWN) -> [n, 3] float32 centres of its voxels, thinned to MAX_POINTS."""
@@ -537,7 +513,8 @@ class ViewerApp:
         server.scene.set_up_direction("+z")
         server.scene.configure_fog(0.0, 1.0, enabled=False)  # the class colours as they are
         self._add_scene(server)
-        add_panels(self, server)
+        if self._pending_field is None:  # else load_field adds them, with the field's cameras
+            add_panels(self, server)
         self.url = f"http://{host}:{server.get_port()}"
         return self.url
 
@@ -563,17 +540,32 @@ class ViewerApp:
             )
             if shown:
                 self._sent[cid] = len(centres)
-        if self.cameras is not None:
-            scale = 0.035 * extent
-            for i in range(len(self.cameras)):
-                cam = self.cameras[i]
-                fov = 2 * math.atan(0.5 * float(cam.height[0]) / float(cam.fy[0]))
-                image = self.view_images[i] if self.view_images else None
-                self.frustum_nodes.append(server.scene.add_camera_frustum(
-                    f"/cameras/view_{i}", fov, float(cam.width[0]) / float(cam.height[0]), scale=scale,
-                    thickness=0.002 * extent, color=(70, 70, 70), image=image,
-                    wxyz=wxyz_from_rotation(cam.c2w[0, :3, :3]), position=cam.c2w[0, :3, 3],
+        self._extent = extent
+        self._add_frusta(server)
+
+    def _add_frusta(self, server: Any) -> None:
+        """The training cameras: every frustum in one line-segment node (one draw call, however many
+        cameras) and each photo as an image on its frustum's rectangle."""
+        if self.cameras is None:
+            return
+        segments = []
+        for i in range(len(self.cameras)):
+            cam = self.cameras[i]
+            c2w = np.asarray(cam.c2w[0], np.float64)
+            fov = 2 * math.atan(0.5 * float(cam.height[0]) / float(cam.fy[0]))
+            seg, (half_w, half_h, depth) = frustum_segments(
+                c2w, fov, float(cam.width[0]) / float(cam.height[0]), 0.035 * self._extent
+            )
+            segments.append(seg)
+            image = self.view_images[i] if self.view_images else None
+            if image is not None:
+                self.frustum_nodes.append(server.scene.add_image(
+                    f"/cameras/photo_{i}", image, 2 * half_w, 2 * half_h, format="jpeg",
+                    wxyz=wxyz_from_rotation(c2w[:3, :3]), position=c2w[:3, :3] @ np.array([0.0, 0.0, depth]) + c2w[:3, 3],
                 ))
+        self.frustum_nodes.insert(0, server.scene.add_line_segments(
+            "/cameras/frusta", np.concatenate(segments), (70, 70, 70), thickness=0.002 * self._extent,
+        ))
 
     def wait_for_client(self, timeout: float = 30.0) -> Any:
         """Block until a browser is connected and has told its camera; returns its client handle.

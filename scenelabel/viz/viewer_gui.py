@@ -146,7 +146,7 @@ def _map_panel(app: Any, server: Any) -> None:
         slider.on_update(lambda event: app.refresh_nodes(float(event.target.value)))
         app.height_slider = slider
         if app.frustum_nodes:
-            frusta = gui.add_checkbox(f"training cameras ({len(app.frustum_nodes)})", True)
+            frusta = gui.add_checkbox(f"training cameras ({len(app.cameras)})", True)
 
             @frusta.on_update
             def _(event: Any) -> None:
