@@ -15,7 +15,6 @@ good they are; a sparse-depth term is only worth adding where there are enough o
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import platform
 import statistics
@@ -77,10 +76,11 @@ def probe_room(name: str) -> dict:
     import pycolmap
 
     from scenelabel import load_scene
+    from scenelabel.data.sfm import quiet_colmap
     from scenelabel.data.suite import write_suite_scene
     from scenelabel.train.pipeline import choose_views
 
-    with tempfile.TemporaryDirectory() as tmp, pycolmap_quiet(pycolmap):
+    with tempfile.TemporaryDirectory() as tmp, quiet_colmap(pycolmap):
         scene_dir = write_suite_scene(Path(tmp) / name, name)
         scene = load_scene(scene_dir)
         train, _, _ = choose_views(scene, 8)
@@ -107,17 +107,6 @@ def probe_room(name: str) -> dict:
         "error_median": float(np.median(errors)) if len(errors) else None,
         "error_over_5pct": float(np.mean(errors > 0.05)) if len(errors) else None,
     }
-
-
-@contextlib.contextmanager
-def pycolmap_quiet(pycolmap):
-    """COLMAP's log at warnings and above while inside."""
-    previous = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = previous
 
 
 def _pct(x, digits: int) -> str:

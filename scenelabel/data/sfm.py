@@ -56,6 +56,7 @@ from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import opencv_to_opengl
 
 __all__ = [
+    "quiet_colmap",
     "MATCHERS",
     "CAMERA_MODELS",
     "EXHAUSTIVE_MAX_IMAGES",
@@ -163,7 +164,7 @@ def _pycolmap():
 
 
 @contextmanager
-def _quiet_colmap(pycolmap):
+def quiet_colmap(pycolmap):
     """Silence COLMAP's INFO/WARNING log lines (glog) while inside; errors still show."""
     previous = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = 2
@@ -338,7 +339,7 @@ def run_sfm(
     database = sfm_dir / DATABASE_FILE
     database.unlink(missing_ok=True)
 
-    with _quiet_colmap(pycolmap):
+    with quiet_colmap(pycolmap):
         logger.info(
             "sfm: SIFT features of %d images (longer side <= %d px, %s %s camera: %s)",
             len(names), max_image_size, camera_mode.replace("_", "-"), camera_model, why,
@@ -510,7 +511,7 @@ def _undistort(result: SfmResult, out_dir: Path) -> Path:
     pycolmap = _pycolmap()
     logger.info("sfm: undistorting %d images to pinhole in %s", result.n_registered, out_dir)
     shutil.rmtree(out_dir, ignore_errors=True)
-    with _quiet_colmap(pycolmap):
+    with quiet_colmap(pycolmap):
         pycolmap.undistort_images(
             str(out_dir), str(result.model_dir), str(result.scene_dir / IMAGES_FOLDER), output_type="COLMAP"
         )
