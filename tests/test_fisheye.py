@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from scenelabel.data.io.depth import MIN_DIRECTION_Z, z_depth_from_ray_depth
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_dict
 from scenelabel.geometry.lens import (
@@ -23,7 +24,6 @@ from scenelabel.geometry.lens import (
 )
 from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid, rays_from_cameras
 from scenelabel.maps.visibility import project_points, scaled_cameras, visible_from_cameras
-from scenelabel.viz.rerun_log import z_depth
 
 # a 64 x 48 fisheye whose image corners lie ~150° from the axis (f = 12 px: radius 40 px = 3.3 rad)
 W, H = 64, 48
@@ -283,10 +283,11 @@ def test_visibility_sees_through_the_fisheye_model():
 
 def test_z_depth_of_a_fisheye():
     depth = np.full((H, W), 2.0)
-    z = z_depth(depth, FX, FY, CX, CY, K, "fisheye")
+    z = z_depth_from_ray_depth(depth, FX, FY, CX, CY, K, "fisheye").reshape(-1)
     dirs = camera_directions_from_pixels(pixel_grid(W, H), FX, FY, CX, CY, K, "fisheye")
-    np.testing.assert_allclose(z.reshape(-1), 2.0 * dirs[:, 2], atol=1e-6)
-    assert (z < 0).any()
+    ahead = dirs[:, 2] > MIN_DIRECTION_Z
+    np.testing.assert_allclose(z[ahead], 2.0 * dirs[ahead, 2], atol=1e-6)
+    assert (~ahead).any() and np.isnan(z[~ahead]).all()  # 90° or more off the axis: no z-depth
 
 
 # resampling to the ideal pinhole (what rerun's Pinhole draws)

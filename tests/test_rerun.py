@@ -11,9 +11,10 @@ import pytest
 
 from scenelabel import FREE, UNKNOWN, OccupancyMap, build, log_rerun, preset, write_toy_scene
 from scenelabel.cli import export_format
+from scenelabel.data.io.depth import z_depth_from_ray_depth
 from scenelabel.errors import InputError
 from scenelabel.maps.exports import class_palette
-from scenelabel.viz.rerun_log import RERUN_FREE, RERUN_IGNORED, RERUN_UNKNOWN, rerun_class_ids, z_depth
+from scenelabel.viz.rerun_log import RERUN_FREE, RERUN_IGNORED, RERUN_UNKNOWN, rerun_class_ids
 
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
@@ -100,7 +101,7 @@ def test_class_ids_and_depth_for_rerun():
     with pytest.raises(InputError, match="rerun class id"):
         rerun_class_ids(np.array([70000]))
     depth = np.full((2, 2), 2.0)  # along the rays; the pixel centres sit at (±1, ±1) / f from the axis
-    np.testing.assert_allclose(z_depth(depth, 2.0, 2.0, 1.0, 1.0), np.full((2, 2), 2.0 / np.sqrt(0.25**2 * 2 + 1)))
+    np.testing.assert_allclose(z_depth_from_ray_depth(depth, 2.0, 2.0, 1.0, 1.0), np.full((2, 2), 2.0 / np.sqrt(0.25**2 * 2 + 1)))
 
 
 def test_sources_that_are_no_build_or_map(tmp_path):
@@ -195,6 +196,6 @@ def test_views_of_a_distorted_camera_are_resampled_to_the_pinhole_logged(tmp_pat
     np.testing.assert_array_equal(mask, ideal_pinhole_image(rerun_class_ids(scene.labels[0], scene.ignore_index), *args, nearest=True,
                                                             fill=RERUN_IGNORED))
     depth = np.frombuffer(bytes(record[base + "/depth"]["DepthImage:buffer"][0][0]), np.float32).reshape(24, 32)
-    true_z = ideal_pinhole_image(z_depth(scene.depths[0], *args), *args, nearest=True)
+    true_z = ideal_pinhole_image(z_depth_from_ray_depth(scene.depths[0], *args), *args, nearest=True)
     np.testing.assert_allclose(depth, true_z, rtol=1e-6)
     assert depth[12, 16] > 0 and depth[0, 0] == 0

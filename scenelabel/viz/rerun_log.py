@@ -49,9 +49,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from scenelabel.data.io.depth import z_depth_from_ray_depth
 from scenelabel.errors import InputError
 from scenelabel.geometry.lens import ideal_pinhole_image
-from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid
 from scenelabel.maps.codes import FREE
 from scenelabel.maps.exports.meshes import class_meshes
 from scenelabel.maps.exports.palette import class_palette
@@ -68,7 +68,6 @@ __all__ = [
     "RecordingSummary",
     "log_rerun",
     "rerun_class_ids",
-    "z_depth",
 ]
 
 RERUN_FREE = 65535
@@ -123,18 +122,6 @@ def rerun_class_ids(label: np.ndarray, ignore_index: int | None = None) -> np.nd
             field="label",
         )
     return out.astype(np.uint16)
-
-
-def z_depth(
-    depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, distortion=None, model: str = "pinhole"
-) -> np.ndarray:
-    """Depth along each pixel's unit ray [H, W] -> depth along the optical axis (camera z) [H, W]
-    float32 (pixel centres at +0.5, docs/conventions.md), through the camera's lens model (an ideal
-    pinhole by default). A fisheye pixel looking 90° or more off its axis has z <= 0."""
-    depth = np.asarray(depth, np.float64)
-    h, w = depth.shape
-    cos_axis = camera_directions_from_pixels(pixel_grid(w, h), fx, fy, cx, cy, distortion, model)[:, 2]  # [H * W]
-    return (depth * cos_axis.reshape(h, w)).astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------
@@ -314,8 +301,8 @@ def _z_depth_image(cameras: Any, index: int, depth: np.ndarray, valid: np.ndarra
     """A depth along each pixel's ray -> the recording's z-depth image [h, w] float32 (under the
     view's Pinhole; 0 where ``valid`` is False, the depth is not finite, or z <= 0)."""
     cam = cameras[index]
-    z = z_depth(depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
-    keep = np.isfinite(z) & (z > 0) & (True if valid is None else valid)  # a fisheye's pixels past 90° have no z
+    z = z_depth_from_ray_depth(depth, cam.fx[0], cam.fy[0], cam.cx[0], cam.cy[0], cam.distortion[0], str(cam.model[0]))
+    keep = np.isfinite(z) & (z > 0) & (True if valid is None else valid)  # NaN: a fisheye's pixels past 90° have no z
     return _pinhole_view(cameras, index, np.where(keep, z, 0.0).astype(np.float32), nearest=True)
 
 
