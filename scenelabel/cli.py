@@ -10,6 +10,7 @@ import argparse
 import contextlib
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -362,6 +363,10 @@ def _cmd_upgrade_checkpoint(args: argparse.Namespace) -> None:
 VIEW_FIELD_WAIT = 10.0
 """``scenelabel view BUILD``: seconds the field waits for a browser to connect before it loads anyway."""
 
+VIEW_FIELD_SETTLE = 1.0
+"""``scenelabel view BUILD``: seconds between a browser's connecting and the field's loading, for the
+browser to draw the map first (loading torch and the checkpoint takes the same cores)."""
+
 
 def _cmd_view(args: argparse.Namespace) -> None:
     """Serve the web viewer of a build or a map until Ctrl-C (or --timeout)."""
@@ -376,6 +381,7 @@ def _cmd_view(args: argparse.Namespace) -> None:
         if app.field_pending:
             with contextlib.suppress(TimeoutError):  # no browser yet: load it anyway
                 app.wait_for_client(VIEW_FIELD_WAIT if args.timeout is None else min(VIEW_FIELD_WAIT, args.timeout))
+                time.sleep(VIEW_FIELD_SETTLE)
         if app.load_field():
             print("scenelabel: field loaded (training cameras, queries and renders by the field)", flush=True)
         app.serve_forever(args.timeout)

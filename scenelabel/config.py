@@ -111,6 +111,17 @@ class SamplingConfig:
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
+    # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
+    # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
+    # the first steps march as few samples as the last (docs/depth_carve.md); box warp only
+    depth_carve: bool = True
+    # at this fraction of the run the carved cells beside uncarved ones are handed back to the field's
+    # own refreshes: a cell carved wrongly (beside a surface whose depth edge is a hole) comes back if
+    # the field holds density there; open space stays carved (1: never)
+    depth_carve_until: float = 0.5
+    # with depth_carve: a training ray with sensor depth ends this many grid cells past its measured
+    # depth (plus CARVE_MARGIN of it), not at the box: behind a surface nothing is seen (0: at the box)
+    depth_ray_end: float = 2.0
     chunk_rays: int = 4096  # rays per chunk when rendering outside training
     # grid: march n_steps, skipping cells the density grid holds empty | hierarchical: NeRF's
     # coarse + fine networks (n_coarse stratified samples, n_fine more drawn from the coarse weights)
@@ -125,6 +136,12 @@ class SamplingConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"sampling.{name} must be an integer >= 1, got {value!r}")
+        until = self.depth_carve_until
+        if isinstance(until, bool) or not (isinstance(until, (int, float)) and 0 <= until <= 1):
+            raise ConfigError(f"sampling.depth_carve_until must be a fraction in [0, 1], got {until!r}")
+        end = self.depth_ray_end
+        if isinstance(end, bool) or not (isinstance(end, (int, float)) and math.isfinite(end) and end >= 0):
+            raise ConfigError(f"sampling.depth_ray_end must be a finite number >= 0, got {end!r}")
 
 
 AUTO = "auto"

@@ -44,6 +44,10 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"solid_weight": float("inf")}},
         {"train": {"solid_depth_steps": 0.0}},
         {"train": {"solid_depth_steps": float("nan")}},
+        {"sampling": {"depth_ray_end": -1.0}},
+        {"sampling": {"depth_carve_until": 1.5}},
+        {"sampling": {"depth_ray_end": float("inf")}},
+        {"sampling": {"depth_ray_end": True}},
         {"train": {"background": "blue"}},
         {"train": {"distortion_start": 1.5}},
         {"train": {"distortion_start": -0.1}},
@@ -52,7 +56,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|depth_carve_until|background|distortion_start"):
         preset("fast", overrides)
 
 

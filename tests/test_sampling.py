@@ -6,10 +6,14 @@ import torch
 
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp
 from scenelabel.render.sampling import (
+    CARVE_MARGIN,
+    CARVE_MIN_POINTS,
     MIN_DISPARITY,
     MIN_DISPARITY_T,
     PDF_EPS,
     DensityGrid,
+    cell_indices,
+    free_cells_from_depth,
     importance_sample,
     march,
     march_disparity,
@@ -398,3 +402,135 @@ def test_normalized_distances_invert_the_march():
         assert torch.all(torch.isfinite(out)) and torch.all((out >= 0) & (out <= 1))
     with pytest.raises(ValueError, match="spacing"):
         normalized_distances("log", t, t_min, t_max)
+
+
+# ------------------------------------------------------------------ space carving from sensor depth
+
+CUBE = torch.tensor([[-1.0] * 3, [1.0] * 3])
+
+
+def naive_cell(r, p):
+    """The [i, j, k] cell of point p (float64) in an [r, r, r] grid over [-1, 1]^3, None outside."""
+    if not all(-1.0 <= x < 1.0 for x in p):
+        return None
+    return tuple(min(int((x + 1.0) / 2.0 * r), r - 1) for x in p)
+
+
+def naive_free_cells(r, origins, directions, t_min, t_max, depth, step, u):
+    """Float64 loop of free_cells_from_depth's rule with the rays' jitter ``u`` (identity warp)."""
+    votes, hits = np.zeros((r, r, r), int), np.zeros((r, r, r), bool)
+    valid = [i for i in range(len(depth)) if np.isfinite(depth[i]) and np.isfinite(t_max[i]) and depth[i] > t_min[i]]
+    for n, i in enumerate(valid):
+        o, d = origins[i].astype(np.float64), directions[i].astype(np.float64)
+        hit = naive_cell(r, o + d * float(depth[i]))
+        if hit is not None:
+            hits[hit] = True
+        t0, t_end = max(float(t_min[i]), 0.0), min(float(depth[i]) * (1 - CARVE_MARGIN) - step, float(t_max[i]))
+        k = 0
+        while t0 + step * (k + u[n]) < t_end:
+            cell = naive_cell(r, o + d * (t0 + step * (k + u[n])))
+            if cell is not None:
+                votes[cell] += 1
+            k += 1
+    near = np.zeros_like(hits)
+    for i, j, k in zip(*np.nonzero(hits)):
+        near[max(i - 1, 0) : i + 2, max(j - 1, 0) : j + 2, max(k - 1, 0) : k + 2] = True
+    return (votes >= CARVE_MIN_POINTS) & ~near
+
+
+def test_cell_indices_match_a_naive_loop():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1.2, 1.2, (500, 3))
+    pts[:3] = [[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.999, 0.999, 0.999]]  # the cube's corner, outside, the last cell
+    flat = cell_indices(5, torch.tensor(pts, dtype=torch.float64))
+    for p, f in zip(pts, flat.tolist()):
+        cell = naive_cell(5, p)
+        assert f == (-1 if cell is None else (cell[0] * 5 + cell[1]) * 5 + cell[2])
+
+
+def _rays_towards(origin, targets):
+    """Unit rays from ``origin`` to each target, with the distance as depth (float32 tensors)."""
+    vec = np.asarray(targets, np.float64) - np.asarray(origin, np.float64)
+    depth = np.linalg.norm(vec, axis=1)
+    origins = torch.tensor(np.broadcast_to(origin, vec.shape), dtype=torch.float32)
+    return origins, torch.tensor(vec / depth[:, None], dtype=torch.float32), torch.tensor(depth, dtype=torch.float32)
+
+
+def test_free_cells_from_depth_match_a_naive_float64_loop():
+    rng = np.random.default_rng(0)
+    targets = np.column_stack([rng.uniform(0.5, 0.9, 300), rng.uniform(-0.9, 0.9, (300, 2))])  # a far, rough wall
+    origins, directions, depth = _rays_towards([-0.95, 0.1, -0.2], targets)
+    depth[::7] = float("nan")  # holes
+    depth[5] = 1e-3  # at the camera: before t_min
+    t_min, t_max = ray_aabb_intersect(origins, directions, CUBE)
+    t_max[9] = float("inf")
+    r, step = 8, 2.0 / 8
+    free = free_cells_from_depth(
+        BoxWarp(CUBE), r, origins, directions, t_min.clamp(min=0.01), t_max, depth, step, torch.Generator().manual_seed(4)
+    )
+    n_valid = int((torch.isfinite(depth) & torch.isfinite(t_max) & (depth > t_min.clamp(min=0.01))).sum())
+    u = torch.rand((n_valid, 1), generator=torch.Generator().manual_seed(4))[:, 0].double().numpy()
+    expected = naive_free_cells(r, origins.numpy(), directions.numpy(), t_min.clamp(min=0.01).numpy(), t_max.numpy(),
+                                depth.numpy(), step, u)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(free.numpy(), expected)
+
+
+def _wall_rays(n=32, wall_x=0.6):
+    """n x n rays from x = -0.95 straight at a wall x = wall_x, over the whole cube's face."""
+    yz = (np.arange(n) + 0.5) / n * 1.9 - 0.95
+    targets = [[wall_x, y, z] for y in yz for z in yz]
+    origins = torch.tensor([[-0.95, y, z] for y, z in np.asarray(targets)[:, 1:]], dtype=torch.float32)
+    directions = torch.tensor([[1.0, 0.0, 0.0]] * len(targets))
+    depth = torch.full((len(targets),), wall_x + 0.95)
+    t_min, t_max = ray_aabb_intersect(origins, directions, CUBE)
+    return origins, directions, t_min.clamp(min=0.0), t_max, depth
+
+
+def test_carving_frees_the_space_in_front_of_a_wall_and_nothing_at_or_behind_it():
+    origins, directions, t_min, t_max, depth = _wall_rays()
+    free = free_cells_from_depth(BoxWarp(CUBE), 8, origins, directions, t_min, t_max, depth, 0.25)
+    # cells along x: [-1, -0.75), ... the wall at 0.6 is in cell 6; cells 5-7 lie within one of its cells
+    assert free[:5].all()
+    assert not free[5:].any()
+
+
+def test_carving_needs_several_points_and_measured_depth():
+    origins, directions, t_min, t_max, depth = _wall_rays()
+    warp = BoxWarp(CUBE)
+    assert not free_cells_from_depth(warp, 8, origins, directions, t_min, t_max, torch.full_like(depth, float("nan")), 0.25).any()
+    one = free_cells_from_depth(warp, 8, origins[:1], directions[:1], t_min[:1], t_max[:1], depth[:1], 0.25)
+    assert not one.any()  # one ray puts at most two points in a cell: no cell is freed by one stray depth
+    with pytest.raises(ValueError, match="step"):
+        free_cells_from_depth(warp, 8, origins, directions, t_min, t_max, depth, 0.0)
+
+
+@pytest.mark.parametrize("value", [0.0, 1e-30, 1e30, float("inf"), float("nan")])
+def test_carving_is_finite_at_extreme_depths(value):
+    """A depth at the camera, tiny, beyond the box or missing carves nothing wrong and stays cheap:
+    points never go past the box (t_max), and a surface outside the cube marks no cell."""
+    origins, directions, t_min, t_max, depth = _wall_rays()
+    free = free_cells_from_depth(BoxWarp(CUBE), 8, origins, directions, t_min, t_max, torch.full_like(depth, value), 0.25)
+    if value == 1e30:  # seen through the whole box: every cell the rays cross is free
+        assert free.any()
+    else:
+        assert not free.any()
+
+
+def test_carved_cells_stay_empty_through_refreshes_and_rebuilds():
+    grid = DensityGrid(BoxWarp(CUBE), resolution=6, step=0.01, alpha_threshold=0.01)
+    free = torch.zeros(6, 6, 6, dtype=torch.bool)
+    free[:2] = True
+    grid.carve(free)
+    assert not grid.bits[:2].any() and grid.bits[2:].all()  # before any refresh: carved cells are skipped
+    dense = lambda p: torch.full((len(p),), 1e3)  # noqa: E731
+    grid.update(dense, generator=torch.Generator().manual_seed(0))
+    assert not grid.bits[:2].any() and grid.bits[2:].all()
+    grid.update(dense, all_cells=False, generator=torch.Generator().manual_seed(1))
+    grid.rebuild(dense, dilate=1)
+    assert not grid.bits[:2].any() and grid.bits[2:].all()
+    assert "carved" not in grid.state_dict()  # a saved grid's bits already leave the carved cells out
+    grid.release_carve_border()  # the carve's border (the cells beside uncarved ones) back to the field
+    grid.update(dense, generator=torch.Generator().manual_seed(2))
+    assert grid.bits[1:].all() and not grid.bits[0].any()
+    assert grid.carved[0].all() and not grid.carved[1:].any()

@@ -12,6 +12,7 @@ from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import CompositeOptions
+from scenelabel.render.sampling import CARVE_MARGIN
 from scenelabel.train.losses import total_variation
 from scenelabel.train.pipeline import prepare_training
 from scenelabel.train.trainer import free_space_limit
@@ -182,11 +183,12 @@ def test_without_sensor_depth_the_depth_weight_changes_nothing(scene):
 
 def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
     """From the same start, with the depth terms the training rays carry much less weight in front
-    of the measured surfaces (the free-space term's quantity) than without them."""
+    of the measured surfaces (the free-space term's quantity) than without them (no carving either
+    way: the terms alone)."""
     loaded = _with_sensor_depth(load_scene(scene))
     front = {}
     for weight in (0.0, 0.1):
-        config = preset("quick", {"train": {"steps": 200, "depth_weight": weight}})
+        config = preset("quick", {"train": {"steps": 200, "depth_weight": weight}, "sampling": {"depth_carve": False}})
         trainer, _, _ = prepare_training(loaded, config, torch.device("cpu"))
         logs = [trainer.train_step() for _ in range(200)]
         assert all(np.isfinite(log["depth"]) for log in logs) and (logs[-1]["depth"] > 0) == (weight > 0)
@@ -199,6 +201,61 @@ def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
             )
         front[weight] = float(out.front_weight.mean())
     assert front[0.1] < 0.5 * front[0.0], front
+
+
+def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):
+    """Before the first step the density grid skips cells that depth rays cross well in front of
+    their surfaces; no measured surface point lies in a skipped cell; carving is off without depth,
+    with ``sampling.depth_carve`` false, or with the depth terms off."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    trainer, static, _ = prepare_training(loaded, preset("quick"), torch.device("cpu"))
+    assert 0.05 < static["carved_by_depth"] == trainer.grid.carved.float().mean().item()
+    assert not (trainer.grid.bits & trainer.grid.carved).any()
+    r = trainer.rays
+    measured = torch.isfinite(r.depth)
+    assert trainer.grid(r.origins[measured] + r.directions[measured] * r.depth[measured, None]).all()
+    halfway = r.origins[measured] + r.directions[measured] * (0.5 * r.depth[measured, None])
+    assert (~trainer.grid(halfway)).float().mean() > 0.5  # most of the space in front is skipped from the start
+    for scene_, overrides in (
+        (load_scene(scene), {}),
+        (loaded, {"sampling": {"depth_carve": False}}),
+        (loaded, {"train": {"depth_weight": 0.0}}),
+    ):
+        trainer, static, _ = prepare_training(scene_, preset("quick", overrides), torch.device("cpu"))
+        assert static["carved_by_depth"] == 0.0 and trainer.grid.occupied_fraction == 1.0
+
+
+def test_the_carve_border_is_handed_back_to_the_field_at_depth_carve_until(scene):
+    """The carve holds until sampling.depth_carve_until of the run; then the carved cells beside
+    uncarved ones are refreshed from the field (a carved cell it holds dense is occupied again) and
+    the rest stay empty."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    config = preset("quick", {"train": {"steps": 64}, "sampling": {"depth_carve_until": 0.5, "grid_update_every": 8}})
+    trainer, _, _ = prepare_training(loaded, config, torch.device("cpu"))
+    carved = trainer.grid.carved.clone()
+    while trainer.progress() < 0.5:
+        trainer.train_step()
+        assert not (trainer.grid.bits & carved).any()
+    trainer.model.density = lambda p: torch.full((len(p),), 1e3)  # a field dense everywhere
+    while not trainer.state.step % 8 == 1:  # up to the first refresh past half the run
+        trainer.train_step()
+    beside = torch.nn.functional.max_pool3d((~carved).float()[None, None], 3, stride=1, padding=1)[0, 0] > 0
+    border, inner = carved & beside, carved & ~beside
+    assert border.any() and inner.any()
+    assert trainer.grid.bits[border].all() and not trainer.grid.bits[inner].any()
+    assert torch.equal(trainer.grid.carved, inner)
+
+
+def test_depth_ray_end_ends_measured_rays_just_past_their_depth(scene):
+    loaded = _with_sensor_depth(load_scene(scene))
+    full, _, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_ray_end": 0.0}}), torch.device("cpu"))
+    ended, static, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_ray_end": 2.0}}), torch.device("cpu"))
+    measured = torch.isfinite(full.rays.depth)
+    aabb_n = np.asarray(static["aabb_internal"])
+    cell = float((aabb_n[1] - aabb_n[0]).min()) / preset("quick").sampling.grid_resolution
+    expected = torch.minimum(full.rays.t_max, full.rays.depth * (1 + CARVE_MARGIN) + 2.0 * cell)
+    torch.testing.assert_close(ended.rays.t_max[measured], expected[measured])
+    torch.testing.assert_close(ended.rays.t_max[~measured], full.rays.t_max[~measured])  # no depth: to the box
 
 
 def test_masked_pixels_give_no_training_rays(scene):

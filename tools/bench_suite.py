@@ -54,6 +54,19 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-1600": {"capture": "phone-depth", "train": {"steps": 1600}},
     "phone-depth-no-solid": {"capture": "phone-depth", "train": {"depth_solid_weight": 0.0}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
+    "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
+    "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve_until": 1.0}},
+}
+# what each phone-depth variant changes, for the document's text (only the variants a run has)
+DEPTH_NOTES: dict[str, str] = {
+    "phone-depth": "the default preset (space carving from the depth, its border handed back to the field at half the run; rays with depth end 2 grid cells past it)",
+    "phone-depth-rgbd": "`--preset rgbd`",
+    "phone-depth-rgbd-1200": "`--preset rgbd` with 1200 steps, at most 80 s of training",
+    "phone-depth-1600": "the default preset with 1600 steps",
+    "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
+    "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
+    "phone-depth-no-carve": "as before carving: no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
+    "phone-depth-keep-carve": "the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (
@@ -185,6 +198,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "box_volume_ratio": float(np.prod(aabb[1] - aabb[0]) / np.prod(true[1] - true[0])),
         "box_holds_interior": bool(np.all(aabb[0] <= interior[0]) and np.all(aabb[1] >= interior[1])),
         "thinly_seen": ckpt["distortion"]["thinly_seen"],
+        "carved_by_depth": ckpt.get("carved_by_depth"),
         "distortion_weight": ckpt["distortion"]["weight"],
         **_three_d(result.field, scene, test_idx, geometry.boxes),
     })
@@ -346,10 +360,8 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         *(["Variants `phone-depth*`: the room also carries depth as a phone gives it",
            "(`scenelabel.data.synthetic.add_phone_depth`: z-depth PNGs at quarter resolution, 1.5 % noise, holes at",
            "depth edges, on dark surfaces, beyond 5 m and 1 % at random), which the build trains on (`train.depth_weight`,",
-           "`train.depth_solid_weight`); `phone-depth` with the default preset, `phone-depth-rgbd` with `--preset rgbd`",
-           "(`-1200`: with 1200 steps, at most 80 s of training), `phone-depth-1600` the default preset with 1600 steps.",
-           "The solid-interior term's layer: 0.5 marching steps",
-           "deep (`train.solid_depth_steps`); `phone-depth-solid-2` as before, 2 steps; `phone-depth-no-solid` without the term.",
+           "`train.depth_solid_weight`, space carving `sampling.depth_carve`). "
+           + "; ".join(f"`{v}`: {DEPTH_NOTES[v]}" for v in variants if v in DEPTH_NOTES) + ".",
            ""] if with_depth else []),
         f"![suite]({plot.name})",
         "",

@@ -51,25 +51,45 @@ def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
     return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
 
 
-def page_ready_after_command(browser, build_dir: Path, palette: dict, classes: list[int]) -> tuple[float, float]:
-    """(seconds until the page shows every class's colour, seconds until the URL was printed), both
-    from starting ``scenelabel view BUILD --port 0`` in a fresh process; the browser is already open."""
+def page_ready_after_command(browser, build_dir: Path, palette: dict, classes: list[int]) -> tuple[float, float, float]:
+    """(seconds until the page shows every class's colour, until the URL was printed, until the
+    command said the field was loaded), all from starting ``scenelabel view BUILD --port 0`` in a
+    fresh process; the browser is already open."""
     import subprocess
+    import threading
 
     start = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "scenelabel", "view", str(build_dir), "--port", "0", "--timeout", "120"],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
+    said: dict[str, float] = {}
+    urls: list[str] = []
+    loaded = threading.Event()
+
+    def read() -> None:
         for line in proc.stdout:
-            if " at http" in line:
-                url = line.split(" at ", 1)[1].split()[0]
-                break
-        else:
-            raise RuntimeError(f"scenelabel view printed no URL (exit {proc.wait()})")
-        printed = time.perf_counter() - start
-        browser.open(url)
+            if " at http" in line and not urls:
+                urls.append(line.split(" at ", 1)[1].split()[0])
+                said["url"] = time.perf_counter() - start
+            if "field loaded" in line:
+                said["field"] = time.perf_counter() - start
+                loaded.set()
+        loaded.set()  # the command ended
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not urls:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"scenelabel view printed no URL (exit {proc.poll()})")
+            time.sleep(0.01)
+        browser.open(urls[0])
         browser.wait_for(lambda im: all(colour_fraction(im, palette[c]) > 0.001 for c in classes), timeout=120)
-        return time.perf_counter() - start, printed
+        ready = time.perf_counter() - start
+        loaded.wait(60)
+        if "field" not in said:
+            raise RuntimeError("scenelabel view never said the field was loaded")
+        return ready, said["url"], said["field"]
     finally:
         proc.terminate()
         proc.wait(30)
@@ -100,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     classes = [c for c in app.palette if app.voxel_counts.get(c, 0) > 0]
     try:
         with HeadlessBrowser(width, height) as browser:
-            after_command, url_printed = page_ready_after_command(browser, build_dir, app.palette, classes)
+            after_command, url_printed, field_loaded = page_ready_after_command(browser, build_dir, app.palette, classes)
             start = time.perf_counter()
             browser.open(url)
             client = app.wait_for_client(60)
@@ -136,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     Image.fromarray(image).save(args.out)
     lines = [
         f"page ready {after_command:.2f} s after `scenelabel view BUILD` started (the URL printed after "
-        f"{url_printed:.2f} s; the browser already running: chromium, SwiftShader WebGL)",
+        f"{url_printed:.2f} s, the field loaded after {field_loaded:.2f} s; the browser already running: chromium, "
+        "SwiftShader WebGL)",
         f"page ready {ready:.2f} s after the URL was opened (the server already running in this process)",
         f"point query through ViewerApp.query: median of 20 {1000 * statistics.median(latencies):.2f} ms "
         f"({'field' if app.field is not None else 'map'})",

@@ -21,6 +21,8 @@ __all__ = [
     "importance_sample",
     "merge_intervals",
     "occupied_at",
+    "cell_indices",
+    "free_cells_from_depth",
     "cell_steps",
     "DensityGrid",
 ]
@@ -244,6 +246,78 @@ def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) ->
     return bits[idx[..., 0], idx[..., 1], idx[..., 2]] & inside
 
 
+def cell_indices(resolution: int, points_cube: torch.Tensor) -> torch.Tensor:
+    """Flat indices (i·R² + j·R + k, [i, j, k] along x, y, z) of the [R, R, R] cells over the cube
+    [-1, 1]³ holding ``points_cube`` [n, 3]: [n] int64, -1 outside the cube."""
+    rel = (points_cube + 1.0) * 0.5
+    inside = ((rel >= 0) & (rel < 1)).all(-1)
+    idx = (rel * resolution).long().clamp(0, resolution - 1)
+    flat = (idx[:, 0] * resolution + idx[:, 1]) * resolution + idx[:, 2]
+    return torch.where(inside, flat, torch.full_like(flat, -1))
+
+
+CARVE_MARGIN = 0.05
+""":func:`free_cells_from_depth` stops this fraction of each measured depth (and one step more) short
+of the measured surface: three times a phone's 1.5 % depth noise."""
+
+CARVE_MIN_POINTS = 3
+"""A cell is free when at least this many carve points fall in it: one ray crosses a cell with at
+most two points one step apart (a step is a cell's side), so one stray depth cannot free a cell."""
+
+CARVE_RAYS = 200_000
+"""At most this many sensor-depth rays (a seeded random subset) carve the grid."""
+
+
+@torch.no_grad()
+def free_cells_from_depth(
+    warp: nn.Module,
+    resolution: int,
+    origins: torch.Tensor,  # [n_rays, 3]
+    directions: torch.Tensor,  # [n_rays, 3]
+    t_min: torch.Tensor,  # [n_rays]
+    t_max: torch.Tensor,  # [n_rays]
+    depth: torch.Tensor,  # [n_rays], NaN = no measurement
+    step: float,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """[R, R, R] bool: the density-grid cells that sensor depth shows empty (space carving).
+
+    Points every ``step`` (jittered) along each ray with a measured ``depth``, from ``t_min`` to
+    ``depth · (1 - CARVE_MARGIN) - step`` but not past ``t_max`` (the box's far side), vote for
+    the cells they fall in. A cell with at least CARVE_MIN_POINTS votes is free unless a measured
+    surface point (``origins + depth · directions``) lies in it or in one of its 26 neighbours,
+    which keeps a surface that grazing rays pass beside (a depth resampled across an edge carries
+    the far side's value). Points map to cells through ``warp`` (normalised frame -> the grid's
+    cube); distances are in units of |directions|. Rays without depth (NaN: holes, masked pixels)
+    carve nothing, nor do depths at or before ``t_min`` or rays with an infinite ``t_max``.
+    """
+    if not step > 0:
+        raise ValueError(f"free_cells_from_depth: step must be > 0, got {step}")
+    n_cells = resolution**3
+    device = origins.device
+    valid = (torch.isfinite(depth) & torch.isfinite(t_max) & (depth > t_min)).nonzero().squeeze(1)
+    if len(valid) > CARVE_RAYS:
+        valid = valid[torch.randperm(len(valid), generator=generator)[:CARVE_RAYS].to(device)]
+    o, d, t0, t1 = origins[valid], directions[valid], t_min[valid].clamp(min=0.0), depth[valid]
+    hits = torch.zeros(n_cells + 1, device=device)  # the last slot takes the points outside the cube (index -1)
+    hits[cell_indices(resolution, warp(o + d * t1[:, None]))] = 1.0
+    t_end = torch.minimum(t1 * (1.0 - CARVE_MARGIN) - step, t_max[valid])
+    votes = torch.zeros(n_cells + 1, dtype=torch.int64, device=device)
+    chunk = 1 << 13
+    for i in range(0, len(valid), chunk):
+        c0, c1 = t0[i : i + chunk], t_end[i : i + chunk]
+        u = torch.rand((len(c0), 1), generator=generator).to(device)  # drawn for every chunk: reproducible
+        if not bool((c1 > c0).any()):
+            continue
+        n = int(math.ceil(float((c1 - c0).max()) / step))
+        ts = c0[:, None] + step * (torch.arange(n, device=device) + u)  # [chunk, n]
+        pts = o[i : i + chunk, None, :] + d[i : i + chunk, None, :] * ts[..., None]
+        cells = cell_indices(resolution, warp(pts[ts < c1[:, None]]))
+        votes += torch.bincount(cells % (n_cells + 1), minlength=n_cells + 1)
+    near_hit = nn.functional.max_pool3d(hits[:n_cells].reshape(1, 1, *(resolution,) * 3), 3, stride=1, padding=1)
+    return (votes[:n_cells] >= CARVE_MIN_POINTS).reshape((resolution,) * 3) & (near_hit[0, 0] == 0)
+
+
 REBUILD_SAMPLES = 3
 """Points per axis and cell at which :meth:`DensityGrid.rebuild` evaluates the density (27 per cell)."""
 
@@ -271,7 +345,8 @@ class DensityGrid(nn.Module):
 
     Each cell keeps an exponential moving average of the largest density seen at random points
     inside it; a cell is occupied when that density could make a marching step at least
-    ``alpha_threshold`` opaque. Until the first update every cell is occupied. Cells live in
+    ``alpha_threshold`` opaque. Until the first update every cell is occupied, except cells
+    :meth:`carve` marks empty (sensor depth saw through them), which stay empty. Cells live in
     the warp's cube (:mod:`scenelabel.geometry.warps`): for a box warp they are boxes, for a forward warp
     frustum slices that grow with depth.
     """
@@ -287,6 +362,8 @@ class DensityGrid(nn.Module):
         self.register_buffer("cube", torch.tensor([[-1.0] * 3, [1.0] * 3]))
         self.register_buffer("density", torch.full((resolution,) * 3, float("inf")))
         self.register_buffer("bits", torch.ones((resolution,) * 3, dtype=torch.bool))
+        # cells known empty (carve): not saved, since a saved grid's bits already leave them out
+        self.register_buffer("carved", torch.zeros((resolution,) * 3, dtype=torch.bool), persistent=False)
         # σ that makes one step alpha_threshold opaque: [1, 1, 1] or [1, 1, R], broadcast over the grid
         threshold = -math.log1p(-alpha_threshold) / torch.as_tensor(step, dtype=torch.float32)
         self.register_buffer("sigma_threshold", threshold.reshape(1, 1, -1), persistent=False)
@@ -298,6 +375,20 @@ class DensityGrid(nn.Module):
         """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``
         (:func:`cell_steps`): what training builds and what a loaded field rebuilds."""
         return cls(warp, resolution, cell_steps(warp, aabb_n, resolution, n_steps), alpha_threshold)
+
+    def carve(self, free: torch.Tensor) -> None:
+        """Hold ``free`` ([R, R, R] bool, e.g. :func:`free_cells_from_depth`) empty from now on:
+        no refresh or rebuild marks those cells occupied, so marching skips them from the first step."""
+        self.carved = free.to(self.bits.device) | self.carved
+        self.bits = self.bits & ~self.carved
+
+    def release_carve_border(self) -> None:
+        """Hand the carved cells beside uncarved ones back to the refreshes (erode the carve by one
+        cell): a cell carved wrongly lies at a surface (its depth edge a hole, grazing rays beside
+        it), and comes back if the field holds density there; open space stays carved."""
+        uncarved = (~self.carved).float()[None, None]
+        beside = nn.functional.max_pool3d(uncarved, 3, stride=1, padding=1)[0, 0] > 0
+        self.carved = self.carved & ~beside
 
     def cell_points(self, cells: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """One random point (normalised frame) in each of ``cells`` (flat indices into the grid): [n, 3]."""
@@ -327,6 +418,7 @@ class DensityGrid(nn.Module):
         else:
             random_cells = torch.randint(n_cells, (n_cells // 4,), generator=generator)
             cells = torch.unique(torch.cat([random_cells, self.bits.flatten().nonzero().squeeze(1).cpu()]))
+        cells = cells[~self.carved.flatten().cpu()[cells]]  # carved cells stay empty: not evaluated
         points = self.cell_points(cells, generator)
         sigmas = torch.cat([density_fn(points[i : i + chunk]) for i in range(0, len(points), chunk)]).float()
         density = self.density.flatten()
@@ -334,7 +426,7 @@ class DensityGrid(nn.Module):
         cells = cells.to(density.device)
         density[cells] = torch.maximum(density[cells] * decay, sigmas.to(density.device))
         self.density = density.reshape(self.density.shape)
-        self.bits = self.density > self.sigma_threshold
+        self.bits = (self.density > self.sigma_threshold) & ~self.carved
 
     @torch.no_grad()
     def rebuild(
@@ -353,6 +445,7 @@ class DensityGrid(nn.Module):
         (a decay of 0.95 per refresh); this grid follows the field as it is. The lattice sees
         any surface thicker than a sub-cell, and the dilation keeps the cells beside those it
         sees (a surface's faint edge), so what the lattice misses lies next to what it finds.
+        Carved cells stay empty.
         """
         r, s = self.resolution, samples_per_axis
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s
@@ -369,7 +462,7 @@ class DensityGrid(nn.Module):
         bits = (self.density > self.sigma_threshold).float()[None, None]
         if dilate > 0:
             bits = torch.nn.functional.max_pool3d(bits, 2 * dilate + 1, stride=1, padding=dilate)
-        self.bits = bits[0, 0] > 0
+        self.bits = (bits[0, 0] > 0) & ~self.carved
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         return occupied_at(self.bits, self.cube, self.warp(points))

@@ -63,7 +63,7 @@ from scenelabel.metrics import (
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
-from scenelabel.render.sampling import DensityGrid, march
+from scenelabel.render.sampling import CARVE_MARGIN, DensityGrid, free_cells_from_depth, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
 from scenelabel.train.losses import composite_target
@@ -305,6 +305,15 @@ def _trainer(
     sc = config.sampling
     grid = DensityGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
+    if rays.depth is not None and sc.depth_carve and config.train.depth_weight > 0 and warp.spacing == "uniform":
+        cell = float((aabb_n[1] - aabb_n[0]).min()) / sc.grid_resolution
+        generator = torch.Generator().manual_seed(config.train.seed)  # every data-parallel rank carves alike
+        grid.carve(free_cells_from_depth(
+            warp, sc.grid_resolution, rays.origins, rays.directions, rays.t_min, rays.t_max, rays.depth, cell, generator
+        ))
+        if sc.depth_ray_end > 0:  # a measured ray ends a little past its surface: behind it is never seen
+            end = rays.depth * (1.0 + CARVE_MARGIN) + sc.depth_ray_end * cell
+            rays.t_max = torch.where(torch.isfinite(rays.depth), torch.minimum(rays.t_max, end), rays.t_max)
     return Trainer(model, grid, rays, config, device, context, coarse), frame, aabb_n
 
 
@@ -461,6 +470,7 @@ def prepare_training(
         "test_views": [scene.names[i] for i in test_idx],
         "split": split_rule,
         "distortion": distortion,
+        "carved_by_depth": float(trainer.grid.carved.float().mean()),  # grid cells sensor depth showed empty
         TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }

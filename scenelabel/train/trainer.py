@@ -311,6 +311,7 @@ class Trainer:
         # "auto" is resolved by the build (pipeline.resolve_distortion); a trainer made without it: off
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
         self.state = TrainState()
+        self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
         # the colour variance of the targets (with alpha: composited; a random background adds its
         # uniform variance 1/12 weighted by (1 - alpha)^2)
         pool_alpha = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool]
@@ -368,7 +369,11 @@ class Trainer:
         step = self.state.step
         if step >= sc.grid_warmup and step % sc.grid_update_every == 0:
             n_updates = (step - sc.grid_warmup) // sc.grid_update_every
-            all_cells = n_updates < GRID_ALL_CELLS_UPDATES
+            release = self.progress() >= sc.depth_carve_until and not self.carve_released and bool(self.grid.carved.any())
+            if release:  # from here the field decides at the carve's border: a cell it holds dense comes back
+                self.grid.release_carve_border()
+                self.carve_released = True
+            all_cells = n_updates < GRID_ALL_CELLS_UPDATES or release
             self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
             broadcast_module_buffers(self.grid)  # identical already; rank 0's copy makes it certain
         self._set_lr()
