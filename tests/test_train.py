@@ -204,11 +204,11 @@ def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
 
 
 def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):
-    """Before the first step the density grid skips cells that depth rays cross well in front of
-    their surfaces; no measured surface point lies in a skipped cell; carving is off without depth,
-    with ``sampling.depth_carve`` false, or with the depth terms off."""
+    """With ``sampling.depth_carve`` the density grid skips, before the first step, cells that depth
+    rays cross well in front of their surfaces; no measured surface point lies in a skipped cell;
+    carving is off without depth, by default, or with the depth terms off."""
     loaded = _with_sensor_depth(load_scene(scene))
-    trainer, static, _ = prepare_training(loaded, preset("quick"), torch.device("cpu"))
+    trainer, static, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_carve": True}}), torch.device("cpu"))
     assert 0.05 < static["carved_by_depth"] == trainer.grid.carved.float().mean().item()
     assert not (trainer.grid.bits & trainer.grid.carved).any()
     r = trainer.rays
@@ -217,9 +217,9 @@ def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):
     halfway = r.origins[measured] + r.directions[measured] * (0.5 * r.depth[measured, None])
     assert (~trainer.grid(halfway)).float().mean() > 0.5  # most of the space in front is skipped from the start
     for scene_, overrides in (
-        (load_scene(scene), {}),
-        (loaded, {"sampling": {"depth_carve": False}}),
-        (loaded, {"train": {"depth_weight": 0.0}}),
+        (load_scene(scene), {"sampling": {"depth_carve": True}}),
+        (loaded, {}),  # off by default
+        (loaded, {"sampling": {"depth_carve": True}, "train": {"depth_weight": 0.0}}),
     ):
         trainer, static, _ = prepare_training(scene_, preset("quick", overrides), torch.device("cpu"))
         assert static["carved_by_depth"] == 0.0 and trainer.grid.occupied_fraction == 1.0
@@ -230,7 +230,7 @@ def test_the_carve_border_is_handed_back_to_the_field_at_depth_carve_until(scene
     uncarved ones are refreshed from the field (a carved cell it holds dense is occupied again) and
     the rest stay empty."""
     loaded = _with_sensor_depth(load_scene(scene))
-    config = preset("quick", {"train": {"steps": 64}, "sampling": {"depth_carve_until": 0.5, "grid_update_every": 8}})
+    config = preset("quick", {"train": {"steps": 64}, "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "grid_update_every": 8}})
     trainer, _, _ = prepare_training(loaded, config, torch.device("cpu"))
     carved = trainer.grid.carved.clone()
     while trainer.progress() < 0.5:
@@ -248,8 +248,10 @@ def test_the_carve_border_is_handed_back_to_the_field_at_depth_carve_until(scene
 
 def test_depth_ray_end_ends_measured_rays_just_past_their_depth(scene):
     loaded = _with_sensor_depth(load_scene(scene))
-    full, _, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_ray_end": 0.0}}), torch.device("cpu"))
-    ended, static, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_ray_end": 2.0}}), torch.device("cpu"))
+    full, _, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_carve": True, "depth_ray_end": 0.0}}), torch.device("cpu"))
+    ended, static, _ = prepare_training(
+        loaded, preset("quick", {"sampling": {"depth_carve": True, "depth_ray_end": 2.0}}), torch.device("cpu")
+    )
     measured = torch.isfinite(full.rays.depth)
     aabb_n = np.asarray(static["aabb_internal"])
     cell = float((aabb_n[1] - aabb_n[0]).min()) / preset("quick").sampling.grid_resolution

@@ -55,18 +55,20 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-no-solid": {"capture": "phone-depth", "train": {"depth_solid_weight": 0.0}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
-    "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve_until": 1.0}},
+    "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
+    "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 1.0, "depth_ray_end": 2.0}},
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
 DEPTH_NOTES: dict[str, str] = {
-    "phone-depth": "the default preset (space carving from the depth, its border handed back to the field at half the run; rays with depth end 2 grid cells past it)",
+    "phone-depth": "the default preset",
     "phone-depth-rgbd": "`--preset rgbd`",
     "phone-depth-rgbd-1200": "`--preset rgbd` with 1200 steps, at most 80 s of training",
     "phone-depth-1600": "the default preset with 1600 steps",
     "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
-    "phone-depth-no-carve": "as before carving: no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
-    "phone-depth-keep-carve": "the carve kept whole to the end (`sampling.depth_carve_until` 1)",
+    "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false, the default), rays to the box (`sampling.depth_ray_end` 0)",
+    "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
+    "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (
