@@ -113,16 +113,15 @@ class SamplingConfig:
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
-    # the first steps march as few samples as the last; box warp only. Off by default: about a third
-    # faster on four rooms, but larger rooms whose far walls lie beyond the depth's range lose their
-    # surfaces or diverge (docs/depth_carve.md, docs/depth_carve_library.md, docs/captures.md)
-    depth_carve: bool = False
+    # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
+    depth_carve: bool = True
     # at this fraction of the run the carved cells beside uncarved ones are handed back to the field's
     # own refreshes: a cell carved wrongly (beside a surface whose depth edge is a hole) comes back if
     # the field holds density there; open space stays carved (1: never)
     depth_carve_until: float = 0.5
     # with depth_carve: a training ray with sensor depth ends this many grid cells past its measured
-    # depth (plus CARVE_MARGIN of it), not at the box: behind a surface nothing is seen (0: at the box)
+    # depth (plus CARVE_MARGIN of it), not at the box: behind a surface nothing is seen (0: at the box).
+    # The depth term still places a ray's transparent rest at the box's far side
     depth_ray_end: float = 2.0
     chunk_rays: int = 4096  # rays per chunk when rendering outside training
     # grid: march n_steps, skipping cells the density grid holds empty | hierarchical: NeRF's

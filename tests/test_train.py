@@ -13,7 +13,7 @@ from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import CompositeOptions
 from scenelabel.render.sampling import CARVE_MARGIN
-from scenelabel.train.losses import total_variation
+from scenelabel.train.losses import DEPTH_HUBER, total_variation
 from scenelabel.train.pipeline import prepare_training
 from scenelabel.train.trainer import free_space_limit
 
@@ -206,9 +206,9 @@ def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
 def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):
     """With ``sampling.depth_carve`` the density grid skips, before the first step, cells that depth
     rays cross well in front of their surfaces; no measured surface point lies in a skipped cell;
-    carving is off without depth, by default, or with the depth terms off."""
+    carving is on by default, off without depth, when asked, or with the depth terms off."""
     loaded = _with_sensor_depth(load_scene(scene))
-    trainer, static, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_carve": True}}), torch.device("cpu"))
+    trainer, static, _ = prepare_training(loaded, preset("quick"), torch.device("cpu"))
     assert 0.05 < static["carved_by_depth"] == trainer.grid.carved.float().mean().item()
     assert not (trainer.grid.bits & trainer.grid.carved).any()
     r = trainer.rays
@@ -218,7 +218,7 @@ def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):
     assert (~trainer.grid(halfway)).float().mean() > 0.5  # most of the space in front is skipped from the start
     for scene_, overrides in (
         (load_scene(scene), {"sampling": {"depth_carve": True}}),
-        (loaded, {}),  # off by default
+        (loaded, {"sampling": {"depth_carve": False}}),
         (loaded, {"sampling": {"depth_carve": True}, "train": {"depth_weight": 0.0}}),
     ):
         trainer, static, _ = prepare_training(scene_, preset("quick", overrides), torch.device("cpu"))
@@ -256,8 +256,27 @@ def test_depth_ray_end_ends_measured_rays_just_past_their_depth(scene):
     aabb_n = np.asarray(static["aabb_internal"])
     cell = float((aabb_n[1] - aabb_n[0]).min()) / preset("quick").sampling.grid_resolution
     expected = torch.minimum(full.rays.t_max, full.rays.depth * (1 + CARVE_MARGIN) + 2.0 * cell)
-    torch.testing.assert_close(ended.rays.t_max[measured], expected[measured])
-    torch.testing.assert_close(ended.rays.t_max[~measured], full.rays.t_max[~measured])  # no depth: to the box
+    assert full.rays.t_stop is None
+    torch.testing.assert_close(ended.rays.t_stop[measured], expected[measured])
+    torch.testing.assert_close(ended.rays.t_stop[~measured], full.rays.t_max[~measured])  # no depth: to the box
+    torch.testing.assert_close(ended.rays.t_max, full.rays.t_max)  # the depth term's far end stays the box's
+
+
+def test_a_ray_stopped_past_its_depth_still_pays_for_transparency(scene):
+    """The depth term places a transparent ray's rest at the box's far side, not where marching
+    stops (sampling.depth_ray_end): at the stop it would cost at most the 5 % margin, and a light
+    wall could stay half transparent in front of a white background (library-7x4 lost its walls)."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    config = preset("quick", {"sampling": {"depth_carve": True}, "field": {"density_bias": -30.0}})
+    trainer, _, _ = prepare_training(loaded, config, torch.device("cpu"))  # a transparent field
+    r = trainer.rays
+    measured = torch.isfinite(r.depth)
+    at_stop = torch.nn.functional.smooth_l1_loss(
+        (r.t_stop[measured] - r.depth[measured]) / r.depth[measured], torch.zeros(int(measured.sum())),
+        beta=DEPTH_HUBER, reduction="none",
+    )
+    logged = trainer.train_step()["depth"]
+    assert logged > 2 * float(at_stop.max())  # stopped there, it could cost no more than at_stop.max()
 
 
 def test_masked_pixels_give_no_training_rays(scene):

@@ -66,8 +66,8 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-1600": "the default preset with 1600 steps",
     "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
-    "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false, the default), rays to the box (`sampling.depth_ray_end` 0)",
-    "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
+    "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
+    "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)

@@ -313,7 +313,7 @@ def _trainer(
         ))
         if sc.depth_ray_end > 0:  # a measured ray ends a little past its surface: behind it is never seen
             end = rays.depth * (1.0 + CARVE_MARGIN) + sc.depth_ray_end * cell
-            rays.t_max = torch.where(torch.isfinite(rays.depth), torch.minimum(rays.t_max, end), rays.t_max)
+            rays.t_stop = torch.where(torch.isfinite(rays.depth), torch.minimum(rays.t_max, end), rays.t_max)
     return Trainer(model, grid, rays, config, device, context, coarse), frame, aabb_n
 
 

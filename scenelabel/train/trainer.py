@@ -48,9 +48,12 @@ from scenelabel.train.losses import (
 
 __all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
 
-DIVERGENCE_CHECK_STEP = 100
+DIVERGENCE_CHECK_STEP = 200
 """From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
-as the mean training colour (the colour variance) has diverged and is stopped."""
+as the mean training colour (the colour variance) has diverged and is stopped. A room of plain walls
+(the mean colour already a good guess) trained on sensor depth can still sit there at step 100
+(gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200); a learning rate 100 times
+too high stays above it for longer (the toy scene: 1.14 times at step 200)."""
 
 MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
@@ -115,6 +118,9 @@ class RayData:
     channels: torch.Tensor  # [N] int64 class channel, -1 = no label
     depth: torch.Tensor | None = None  # [N] measured distance along the ray (sensor depth), NaN = none; None: no view has one
     alpha: torch.Tensor | None = None  # [N] pixel alpha in [0, 1] (Scene.image_alphas; rgb is composited on the background); None: opaque
+    # [N] where training stops marching, at most t_max (sampling.depth_ray_end: a little past the measured
+    # surface); None: t_max. The depth loss still places a ray's transparent rest at t_max
+    t_stop: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.origins.shape[0]
@@ -394,8 +400,9 @@ class Trainer:
             background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
         target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
         free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step)
+        t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
         out, coarse_out, solid_sigmas = self.render(
-            r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], jitter, fine_jitter,
+            r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
             CompositeOptions(background, True, tc.detach_semantic_weights, free_until), solid_offsets=solid_offsets,
         )
         target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
@@ -405,7 +412,8 @@ class Trainer:
         distortion_weight = self.distortion_weight if self.progress() >= tc.distortion_start else 0.0
         loss = mse + tc.semantic_weight * ce + distortion_weight * distortion
         depth_term = mse.new_zeros(())
-        if target_depth is not None:  # expected termination (the transparent rest at the ray's far end)
+        if target_depth is not None:  # expected termination (the transparent rest at the ray's far end, the box's:
+            # a ray whose marching stops just past its surface must still be opaque there)
             termination = out.depth * out.opacity + (1.0 - out.opacity) * r.t_max[idx].clamp(min=0.0)
             depth_term = depth_loss(termination, target_depth) + free_space_loss(out.front_weight, target_depth)
             loss = loss + tc.depth_weight * depth_term
