@@ -111,6 +111,9 @@ class SamplingConfig:
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
+    # each refresh keeps max(decay x a cell's remembered density, its density now): a cell the field
+    # has emptied stays occupied until its early density has decayed below the threshold
+    grid_decay: float = 0.95
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -140,6 +143,9 @@ class SamplingConfig:
         until = self.depth_carve_until
         if isinstance(until, bool) or not (isinstance(until, (int, float)) and 0 <= until <= 1):
             raise ConfigError(f"sampling.depth_carve_until must be a fraction in [0, 1], got {until!r}")
+        decay = self.grid_decay
+        if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1):
+            raise ConfigError(f"sampling.grid_decay must be in (0, 1], got {decay!r}")
         end = self.depth_ray_end
         if isinstance(end, bool) or not (isinstance(end, (int, float)) and math.isfinite(end) and end >= 0):
             raise ConfigError(f"sampling.depth_ray_end must be a finite number >= 0, got {end!r}")

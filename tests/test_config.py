@@ -45,6 +45,8 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"solid_depth_steps": 0.0}},
         {"train": {"solid_depth_steps": float("nan")}},
         {"sampling": {"depth_ray_end": -1.0}},
+        {"sampling": {"grid_decay": 0.0}},
+        {"sampling": {"grid_decay": 1.5}},
         {"sampling": {"depth_carve_until": 1.5}},
         {"sampling": {"depth_ray_end": float("inf")}},
         {"sampling": {"depth_ray_end": True}},
@@ -56,7 +58,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|depth_carve_until|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
         preset("fast", overrides)
 
 

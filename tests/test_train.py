@@ -279,6 +279,25 @@ def test_a_ray_stopped_past_its_depth_still_pays_for_transparency(scene):
     assert logged > 2 * float(at_stop.max())  # stopped there, it could cost no more than at_stop.max()
 
 
+def test_grid_refreshes_decay_by_sampling_grid_decay(scene, monkeypatch):
+    """Each refresh of the density grid keeps max(sampling.grid_decay x a cell's remembered density,
+    its density now)."""
+    from scenelabel.render.sampling import DensityGrid
+
+    decays = []
+    real = DensityGrid.update
+    monkeypatch.setattr(DensityGrid, "update", lambda self, fn, decay=0.95, **kw: (decays.append(decay), real(self, fn, decay, **kw)))
+    trainer, _, _ = prepare_training(load_scene(scene), preset("quick", {"sampling": {"grid_decay": 0.5}}), torch.device("cpu"))
+    sc = trainer.config.sampling
+    for _ in range(sc.grid_warmup + sc.grid_update_every + 1):
+        trainer.train_step()
+    assert decays == [0.5, 0.5]
+    before = trainer.grid.density.clone()
+    monkeypatch.setattr(DensityGrid, "update", real)
+    trainer.grid.update(lambda p: torch.zeros(len(p)), 0.5)  # a field emptied everywhere
+    torch.testing.assert_close(trainer.grid.density, 0.5 * before)
+
+
 def test_masked_pixels_give_no_training_rays(scene):
     loaded = load_scene(scene)
     masks = [np.zeros(im.shape[:2], bool) for im in loaded.images]

@@ -38,6 +38,7 @@ VARIANTS: dict[str, dict] = {
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
+    "decay-0.8": {"sampling": {"grid_decay": 0.8}},
     "voxels": {"preset": "voxels"},
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
@@ -52,6 +53,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-rgbd": {"capture": "phone-depth", "preset": "rgbd"},
     "phone-depth-rgbd-1200": {"capture": "phone-depth", "preset": "rgbd", "train": {"steps": 1200, "time_budget": 80.0}},
     "phone-depth-1600": {"capture": "phone-depth", "train": {"steps": 1600}},
+    "phone-depth-decay-0.8": {"capture": "phone-depth", "sampling": {"grid_decay": 0.8}},
     "phone-depth-no-solid": {"capture": "phone-depth", "train": {"depth_solid_weight": 0.0}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
@@ -64,6 +66,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-rgbd": "`--preset rgbd`",
     "phone-depth-rgbd-1200": "`--preset rgbd` with 1200 steps, at most 80 s of training",
     "phone-depth-1600": "the default preset with 1600 steps",
+    "phone-depth-decay-0.8": "the density grid's remembered density decaying 0.8 per refresh (`sampling.grid_decay`; default 0.95)",
     "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",

@@ -380,7 +380,7 @@ class Trainer:
                 self.grid.release_carve_border()
                 self.carve_released = True
             all_cells = n_updates < GRID_ALL_CELLS_UPDATES or release
-            self.grid.update(self.model.density, all_cells=all_cells, generator=self.generator)
+            self.grid.update(self.model.density, sc.grid_decay, all_cells=all_cells, generator=self.generator)
             broadcast_module_buffers(self.grid)  # identical already; rank 0's copy makes it certain
         self._set_lr()
         pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
