@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CHROMIUM_NAMES", "CHROMIUM_FLAGS", "FAST_QUALITY", "find_chromium", "HeadlessBrowser", "screenshot"]
+__all__ = ["CHROMIUM_NAMES", "CHROMIUM_FLAGS", "find_chromium", "HeadlessBrowser", "screenshot"]
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 CHROMIUM_FLAGS = (
@@ -37,9 +37,6 @@ CHROMIUM_FLAGS = (
     "--disable-extensions",
     "--mute-audio",
 )
-FAST_QUALITY = 90
-"""JPEG quality of :meth:`HeadlessBrowser.screenshot` with ``fast``: class colours stay within a
-colour tolerance of a few levels."""
 _LISTENING = re.compile(r"DevTools listening on (ws://\S+)")
 
 
@@ -134,23 +131,18 @@ class HeadlessBrowser:
         result = self.send("Runtime.evaluate", expression=expression, returnByValue=True)
         return result.get("result", {}).get("value")
 
-    def screenshot(self, fast: bool = False) -> np.ndarray:
-        """The page as an [height, width, 3] uint8 RGB image. ``fast``: a JPEG (quality
-        FAST_QUALITY) the browser encodes for speed, not a PNG: a poll that takes the CPU a PNG
-        encode needs away from the page it waits for delays what it measures."""
+    def screenshot(self) -> np.ndarray:
+        """The page as an [height, width, 3] uint8 RGB image."""
         from PIL import Image
 
-        options = {"format": "jpeg", "quality": FAST_QUALITY, "optimizeForSpeed": True} if fast else {"format": "png"}
-        data = base64.b64decode(self.send("Page.captureScreenshot", **options)["data"])
+        data = base64.b64decode(self.send("Page.captureScreenshot", format="png")["data"])
         with Image.open(io.BytesIO(data)) as im:
             return np.asarray(im.convert("RGB"))
 
     def wait_for(
-        self, ready: Callable[[np.ndarray], bool], timeout: float = 60.0, interval: float = 0.05
+        self, ready: Callable[[np.ndarray], bool], timeout: float = 60.0, interval: float = 0.25
     ) -> np.ndarray:
-        """Fast screenshots (:meth:`screenshot`) until ``ready(image)`` holds; returns a full one
-        taken then (PNG, and ready(image) is checked on it again: a page that changed in between
-        is polled on).
+        """Screenshots until ``ready(image)`` holds; returns that image.
 
         Raises:
             TimeoutError: not within ``timeout`` seconds (the message says so; the last image is
@@ -160,15 +152,13 @@ class HeadlessBrowser:
         image = None
         while True:
             try:
-                image = self.screenshot(fast=True)
-                if ready(image):
-                    image = self.screenshot()
-                    if ready(image):
-                        return image
+                image = self.screenshot()
             except RuntimeError as error:  # a page still being swapped in after open(): not ready yet
                 if "Not attached to an active page" not in str(error) or time.monotonic() > deadline:
                     raise
                 image = None
+            if image is not None and ready(image):
+                return image
             if time.monotonic() > deadline:
                 err = TimeoutError(f"the page did not show what was expected within {timeout:g} s")
                 err.image = image  # type: ignore[attr-defined]
