@@ -256,6 +256,13 @@ def cell_indices(resolution: int, points_cube: torch.Tensor) -> torch.Tensor:
     return torch.where(inside, flat, torch.full_like(flat, -1))
 
 
+def _dilated(cells: torch.Tensor, radius: int = 1) -> torch.Tensor:
+    """[R, R, R] bool: the cells marked in ``cells`` ([R, R, R], bool or > 0) and those within
+    ``radius`` cells of one along every axis (a (2 radius + 1)³ neighbourhood, clipped at the faces)."""
+    grown = nn.functional.max_pool3d(cells.float()[None, None], 2 * radius + 1, stride=1, padding=radius)
+    return grown[0, 0] > 0
+
+
 CARVE_MARGIN = 0.05
 """:func:`free_cells_from_depth` stops this fraction of each measured depth (and one step more) short
 of the measured surface: three times a phone's 1.5 % depth noise."""
@@ -314,8 +321,8 @@ def free_cells_from_depth(
         pts = o[i : i + chunk, None, :] + d[i : i + chunk, None, :] * ts[..., None]
         cells = cell_indices(resolution, warp(pts[ts < c1[:, None]]))
         votes += torch.bincount(cells % (n_cells + 1), minlength=n_cells + 1)
-    near_hit = nn.functional.max_pool3d(hits[:n_cells].reshape(1, 1, *(resolution,) * 3), 3, stride=1, padding=1)
-    return (votes[:n_cells] >= CARVE_MIN_POINTS).reshape((resolution,) * 3) & (near_hit[0, 0] == 0)
+    near_hit = _dilated(hits[:n_cells].reshape((resolution,) * 3))
+    return (votes[:n_cells] >= CARVE_MIN_POINTS).reshape((resolution,) * 3) & ~near_hit
 
 
 REBUILD_SAMPLES = 3
@@ -386,9 +393,7 @@ class DensityGrid(nn.Module):
         """Hand the carved cells beside uncarved ones back to the refreshes (erode the carve by one
         cell): a cell carved wrongly lies at a surface (its depth edge a hole, grazing rays beside
         it), and comes back if the field holds density there; open space stays carved."""
-        uncarved = (~self.carved).float()[None, None]
-        beside = nn.functional.max_pool3d(uncarved, 3, stride=1, padding=1)[0, 0] > 0
-        self.carved = self.carved & ~beside
+        self.carved = self.carved & ~_dilated(~self.carved)
 
     def cell_points(self, cells: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """One random point (normalised frame) in each of ``cells`` (flat indices into the grid): [n, 3]."""
@@ -459,10 +464,10 @@ class DensityGrid(nn.Module):
             sigmas = density_fn(self.warp.inverse(unit.to(self.cube.device))).float()
             density[i : i + per_chunk] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
         self.density = density.reshape(r, r, r)
-        bits = (self.density > self.sigma_threshold).float()[None, None]
+        bits = self.density > self.sigma_threshold
         if dilate > 0:
-            bits = torch.nn.functional.max_pool3d(bits, 2 * dilate + 1, stride=1, padding=dilate)
-        self.bits = (bits[0, 0] > 0) & ~self.carved
+            bits = _dilated(bits, dilate)
+        self.bits = bits & ~self.carved
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         return occupied_at(self.bits, self.cube, self.warp(points))
