@@ -112,8 +112,10 @@ class SamplingConfig:
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
     alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
     # each refresh keeps max(decay x a cell's remembered density, its density now): a cell the field
-    # has emptied stays occupied until its early density has decayed below the threshold
-    grid_decay: float = 0.95
+    # has emptied stays occupied until its early density has decayed below the threshold. "auto":
+    # GRID_DECAY_WITH_DEPTH where the training rays carry sensor depth (and train.depth_weight > 0),
+    # else GRID_DECAY; the build saves the number it chose
+    grid_decay: float | str = "auto"
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -144,15 +146,34 @@ class SamplingConfig:
         if isinstance(until, bool) or not (isinstance(until, (int, float)) and 0 <= until <= 1):
             raise ConfigError(f"sampling.depth_carve_until must be a fraction in [0, 1], got {until!r}")
         decay = self.grid_decay
-        if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1):
-            raise ConfigError(f"sampling.grid_decay must be in (0, 1], got {decay!r}")
+        if decay != AUTO and (isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1)):
+            raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
         end = self.depth_ray_end
         if isinstance(end, bool) or not (isinstance(end, (int, float)) and math.isfinite(end) and end >= 0):
             raise ConfigError(f"sampling.depth_ray_end must be a finite number >= 0, got {end!r}")
 
 
 AUTO = "auto"
-"""``train.distortion_weight``: chosen by the build from how many views see the observed geometry."""
+"""``train.distortion_weight``: chosen by the build from how many views see the observed geometry;
+``sampling.grid_decay``: from whether the training rays carry sensor depth."""
+
+GRID_DECAY = 0.95
+"""``sampling.grid_decay`` "auto" without sensor depth."""
+
+GRID_DECAY_WITH_DEPTH = 0.8
+"""``sampling.grid_decay`` "auto" with sensor depth: the depth terms empty free space in the first
+refreshes, and a grid that forgets the early fog sooner marches fewer samples per ray; same
+geometry and labels on the suite's rooms (docs/depth_grid_decay.md)."""
+
+
+def resolve_grid_decay(config: BuildConfig, with_depth: bool) -> BuildConfig:
+    """``config`` with ``sampling.grid_decay`` a number: "auto" becomes GRID_DECAY_WITH_DEPTH when the
+    training rays carry sensor depth the build trains on (``with_depth``), else GRID_DECAY."""
+    sc = config.sampling
+    if sc.grid_decay != AUTO:
+        return config
+    decay = GRID_DECAY_WITH_DEPTH if with_depth else GRID_DECAY
+    return dataclasses.replace(config, sampling=dataclasses.replace(sc, grid_decay=decay))
 
 DISTORTION_AUTO_WEIGHT = 0.002
 """The distortion weight ``"auto"`` chooses where the views see the scene well."""

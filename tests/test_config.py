@@ -47,6 +47,7 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"depth_ray_end": -1.0}},
         {"sampling": {"grid_decay": 0.0}},
         {"sampling": {"grid_decay": 1.5}},
+        {"sampling": {"grid_decay": "fast"}},
         {"sampling": {"depth_carve_until": 1.5}},
         {"sampling": {"depth_ray_end": float("inf")}},
         {"sampling": {"depth_ray_end": True}},

@@ -369,3 +369,22 @@ def test_sensor_depth_on_held_out_views_only_leaves_the_bounds_to_the_coarse_fit
     _, static, test_idx = prepare_training(bare, preset("quick"), torch.device("cpu"))
     assert 0 in test_idx
     assert static["aabb_source"].startswith("observed geometry")
+
+
+def test_grid_decay_auto_follows_sensor_depth(scene):
+    """sampling.grid_decay "auto": GRID_DECAY_WITH_DEPTH where the training rays carry sensor depth the
+    build trains on, GRID_DECAY otherwise (no depth, or train.depth_weight 0); the trainer's config (the
+    one the refreshes read and the checkpoint saves) holds the number."""
+    from scenelabel.config import GRID_DECAY, GRID_DECAY_WITH_DEPTH
+
+    plain, with_depth = load_scene(scene), _with_sensor_depth(load_scene(scene))
+    cases = (
+        (plain, {}, GRID_DECAY),
+        (with_depth, {}, GRID_DECAY_WITH_DEPTH),
+        (with_depth, {"train": {"depth_weight": 0.0}}, GRID_DECAY),
+        (with_depth, {"sampling": {"grid_decay": 0.5}}, 0.5),
+    )
+    assert GRID_DECAY != GRID_DECAY_WITH_DEPTH
+    for loaded, overrides, expected in cases:
+        trainer, _, _ = prepare_training(loaded, preset("quick", overrides), torch.device("cpu"))
+        assert trainer.config.sampling.grid_decay == expected

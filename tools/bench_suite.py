@@ -53,7 +53,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-rgbd": {"capture": "phone-depth", "preset": "rgbd"},
     "phone-depth-rgbd-1200": {"capture": "phone-depth", "preset": "rgbd", "train": {"steps": 1200, "time_budget": 80.0}},
     "phone-depth-1600": {"capture": "phone-depth", "train": {"steps": 1600}},
-    "phone-depth-decay-0.8": {"capture": "phone-depth", "sampling": {"grid_decay": 0.8}},
+    "phone-depth-decay-0.95": {"capture": "phone-depth", "sampling": {"grid_decay": 0.95}},
     "phone-depth-no-solid": {"capture": "phone-depth", "train": {"depth_solid_weight": 0.0}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
@@ -66,13 +66,30 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-rgbd": "`--preset rgbd`",
     "phone-depth-rgbd-1200": "`--preset rgbd` with 1200 steps, at most 80 s of training",
     "phone-depth-1600": "the default preset with 1600 steps",
-    "phone-depth-decay-0.8": "the density grid's remembered density decaying 0.8 per refresh (`sampling.grid_decay`; default 0.95)",
+    "phone-depth-decay-0.95": "the density grid's remembered density decaying 0.95 per refresh (`sampling.grid_decay`; default \"auto\": 0.8 with sensor depth, 0.95 without)",
     "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }
+# the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
+# the spread one run per room hides
+SEEDS = (1, 2)
+for _seed in SEEDS:
+    VARIANTS[f"seed-{_seed}"] = {"train": {"seed": _seed}}
+    VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
+    DEPTH_NOTES[f"phone-depth-seed-{_seed}"] = f"the default preset with training seed {_seed} (`train.seed`; default 0)"
+
+
+def seed_family(variant: str) -> str:
+    """The variant a seed variant repeats (`phone-depth-seed-1` -> `phone-depth`, `seed-2` -> `-`)."""
+    head, sep, seed = variant.rpartition("seed-")
+    if not sep or not seed.isdigit():
+        return variant
+    return head.rstrip("-") or "-"
+
+
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
 TARGETS = (
     ("build <= 180 s", lambda r: r["build_seconds"] <= 180),
@@ -261,6 +278,12 @@ def _aggregate(rows: list[dict], variant: str) -> list[str]:
         worst = [f"{(max if k in WORST_IS_HIGH else min)(r[k] for r in sel):.3g}" for k in AGGREGATES]
         lines.append(f"| {group}: median | " + " | ".join(med) + " |")
         lines.append(f"| {group}: worst | " + " | ".join(worst) + " |")
+    base = next(r["variant"] for r in rows)
+    paired = {r["scene"]: r["build_seconds"] for r in rows if r["variant"] == base}
+    ratios = [r["build_seconds"] / paired[r["scene"]] for r in rows if r["variant"] == variant and r["scene"] in paired]
+    if variant != base and ratios:
+        lines += ["", f"Build time against `{base}` on the same room: median ratio "
+                  f"{statistics.median(ratios):.2f}, range {min(ratios):.2f}-{max(ratios):.2f} over {len(ratios)} rooms."]
     return lines
 
 
@@ -286,6 +309,15 @@ def _depth_targets(rows: list[dict]) -> list[str]:
         if paired:
             lower = [f"{r['scene']} {r['miou']:.3f} < {without[r['scene']]['miou']:.3f}" for r in paired if r["miou"] < without[r["scene"]]["miou"]]
             lines.append(f"- `{variant}`: mIoU no lower than the same room without depth: " + ("met on every room" if not lower else f"not met on {len(lower)} of {len(paired)} ({'; '.join(lower)})"))
+    seeded: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        seeded.setdefault((r["scene"], seed_family(r["variant"])), []).append(r["miou"])
+    rooms = [s for (s, f), v in seeded.items() if f == "phone-depth" and len(v) > 1 and len(seeded.get((s, "-"), ())) > 1]
+    if rooms:
+        mean = {k: statistics.mean(v) for k, v in seeded.items()}
+        lower = [f"{s} {mean[s, 'phone-depth']:.3f} < {mean[s, '-']:.3f}" for s in rooms if mean[s, "phone-depth"] < mean[s, "-"]]
+        lines.append("- `phone-depth`, mean over seeds: mIoU no lower than the same room's mean without depth: "
+                     + ("met on every room" if not lower else f"not met on {len(lower)} of {len(rooms)} ({'; '.join(lower)})"))
     return lines
 
 
@@ -386,9 +418,29 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
+    lines += _seed_spread(rows)
     lines += ["Bounds chosen per room: " + "; ".join(sorted({r["aabb_source"].split(" (")[0] for r in rows})) + ".", ""]
     lines += _per_class(rows)
     path.write_text("\n".join(lines) + "\n")
+
+
+def _seed_spread(rows: list[dict]) -> list[str]:
+    """Per room and variant built with several seeds: mean and range of the measures that decide."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["scene"], seed_family(r["variant"])), []).append(r)
+    groups = {k: v for k, v in groups.items() if len(v) > 1}
+    if not groups:
+        return []
+    keys = {"miou": ".3f", "psnr": ".1f", "fscore": ".3f", "surface_field": ".3f", "build_seconds": ".0f"}
+    lines = ["## Spread over training seeds", "",
+             "The same room and variant built with training seeds 0 (the variant's own row) and "
+             + ", ".join(map(str, SEEDS)) + " (`train.seed`): mean (min-max).", "",
+             "| room | variant | seeds | " + " | ".join(keys) + " |", "|---|---|---|" + "---|" * len(keys)]
+    for (scene, family), sel in groups.items():
+        cells = [f"{statistics.mean(r[k] for r in sel):{f}} ({min(r[k] for r in sel):{f}}-{max(r[k] for r in sel):{f}})" for k, f in keys.items()]
+        lines.append(f"| {scene} | {family} | {len(sel)} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 def _per_class(rows: list[dict]) -> list[str]:
@@ -452,8 +504,8 @@ def main() -> None:
     command = "python tools/bench_suite.py " + " ".join(sys.argv[1:])
     code = code_version()
     rows = []
-    for variant in args.variants:
-        for name in args.scenes:
+    for name in args.scenes:  # a room's variants back to back: their timings see the same machine load
+        for variant in args.variants:
             t0 = time.perf_counter()
             row = run_one({"scene": name, "variant": variant, "budget": args.budget, "steps": args.steps})
             row["budget"], row["steps_asked"], row["code"] = args.budget, args.steps, code

@@ -451,6 +451,7 @@ def prepare_training(
     if context.distributed:
         aabb = broadcast_array(aabb, device)
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
+    config = trainer.config  # with what the trainer resolved (sampling.grid_decay): the checkpoint saves it
     finest = _finest_cell(config, aabb)
     static = {
         "config": config_to_dict(config),
