@@ -82,12 +82,13 @@ for _seed in SEEDS:
     DEPTH_NOTES[f"phone-depth-seed-{_seed}"] = f"the default preset with training seed {_seed} (`train.seed`; default 0)"
 
 
-def seed_family(variant: str) -> str:
-    """The variant a seed variant repeats (`phone-depth-seed-1` -> `phone-depth`, `seed-2` -> `-`)."""
+def seed_family(variant: str) -> tuple[str, int]:
+    """The variant a seed variant repeats and its seed (`phone-depth-seed-1` -> (`phone-depth`, 1),
+    `seed-2` -> (`-`, 2), any other variant -> (itself, 0))."""
     head, sep, seed = variant.rpartition("seed-")
     if not sep or not seed.isdigit():
-        return variant
-    return head.rstrip("-") or "-"
+        return variant, 0
+    return head.rstrip("-") or "-", int(seed)
 
 
 # Targets of the scene-suite issue, for rooms at 160x120 with 30-60 views (checked from the run)
@@ -297,21 +298,23 @@ DEPTH_TARGETS = (
 
 
 def _depth_targets(rows: list[dict]) -> list[str]:
-    """The RGB-D targets on the rows with phone-like depth; mIoU against the same room's row without depth."""
-    without = {r["scene"]: r for r in rows if r["variant"] == "-"}
+    """The RGB-D targets on the rows with phone-like depth; mIoU against the same room's row without
+    depth (with the same training seed)."""
+    without = {(r["scene"], seed_family(r["variant"])[1]): r for r in rows if seed_family(r["variant"])[0] == "-"}
     lines = []
     for variant in dict.fromkeys(r["variant"] for r in rows if r["variant"].startswith("phone-depth")):
         sel = [r for r in rows if r["variant"] == variant]
         for name, ok in DEPTH_TARGETS:
             failing = [r["scene"] for r in sel if not ok(r)]
             lines.append(f"- `{variant}`: {name}: " + ("met on every room" if not failing else f"not met on {len(failing)} of {len(sel)} ({', '.join(failing)})"))
-        paired = [r for r in sel if r["scene"] in without]
+        seed = seed_family(variant)[1]
+        paired = [(r, without[r["scene"], seed]) for r in sel if (r["scene"], seed) in without]
         if paired:
-            lower = [f"{r['scene']} {r['miou']:.3f} < {without[r['scene']]['miou']:.3f}" for r in paired if r["miou"] < without[r["scene"]]["miou"]]
-            lines.append(f"- `{variant}`: mIoU no lower than the same room without depth: " + ("met on every room" if not lower else f"not met on {len(lower)} of {len(paired)} ({'; '.join(lower)})"))
+            lower = [f"{r['scene']} {r['miou']:.3f} < {w['miou']:.3f}" for r, w in paired if r["miou"] < w["miou"]]
+            lines.append(f"- `{variant}`: mIoU no lower than the same room without depth (same seed): " + ("met on every room" if not lower else f"not met on {len(lower)} of {len(paired)} ({'; '.join(lower)})"))
     seeded: dict[tuple[str, str], list[float]] = {}
     for r in rows:
-        seeded.setdefault((r["scene"], seed_family(r["variant"])), []).append(r["miou"])
+        seeded.setdefault((r["scene"], seed_family(r["variant"])[0]), []).append(r["miou"])
     rooms = [s for (s, f), v in seeded.items() if f == "phone-depth" and len(v) > 1 and len(seeded.get((s, "-"), ())) > 1]
     if rooms:
         mean = {k: statistics.mean(v) for k, v in seeded.items()}
@@ -428,7 +431,7 @@ def _seed_spread(rows: list[dict]) -> list[str]:
     """Per room and variant built with several seeds: mean and range of the measures that decide."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["scene"], seed_family(r["variant"])), []).append(r)
+        groups.setdefault((r["scene"], seed_family(r["variant"])[0]), []).append(r)
     groups = {k: v for k, v in groups.items() if len(v) > 1}
     if not groups:
         return []
