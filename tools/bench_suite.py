@@ -312,12 +312,10 @@ def _depth_targets(rows: list[dict]) -> list[str]:
         if paired:
             lower = [f"{r['scene']} {r['miou']:.3f} < {w['miou']:.3f}" for r, w in paired if r["miou"] < w["miou"]]
             lines.append(f"- `{variant}`: mIoU no lower than the same room without depth (same seed): " + ("met on every room" if not lower else f"not met on {len(lower)} of {len(paired)} ({'; '.join(lower)})"))
-    seeded: dict[tuple[str, str], list[float]] = {}
-    for r in rows:
-        seeded.setdefault((r["scene"], seed_family(r["variant"])[0]), []).append(r["miou"])
+    seeded = _seed_groups(rows)
     rooms = [s for (s, f), v in seeded.items() if f == "phone-depth" and len(v) > 1 and len(seeded.get((s, "-"), ())) > 1]
     if rooms:
-        mean = {k: statistics.mean(v) for k, v in seeded.items()}
+        mean = {k: statistics.mean(r["miou"] for r in v) for k, v in seeded.items()}
         lower = [f"{s} {mean[s, 'phone-depth']:.3f} < {mean[s, '-']:.3f}" for s in rooms if mean[s, "phone-depth"] < mean[s, "-"]]
         lines.append("- `phone-depth`, mean over seeds: mIoU no lower than the same room's mean without depth: "
                      + ("met on every room" if not lower else f"not met on {len(lower)} of {len(rooms)} ({'; '.join(lower)})"))
@@ -427,12 +425,17 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     path.write_text("\n".join(lines) + "\n")
 
 
-def _seed_spread(rows: list[dict]) -> list[str]:
-    """Per room and variant built with several seeds: mean and range of the measures that decide."""
+def _seed_groups(rows: list[dict]) -> dict[tuple[str, str], list[dict]]:
+    """Rows by (room, the variant a seed variant repeats): a group holds one row per seed built."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
         groups.setdefault((r["scene"], seed_family(r["variant"])[0]), []).append(r)
-    groups = {k: v for k, v in groups.items() if len(v) > 1}
+    return groups
+
+
+def _seed_spread(rows: list[dict]) -> list[str]:
+    """Per room and variant built with several seeds: mean and range of the measures that decide."""
+    groups = {k: v for k, v in _seed_groups(rows).items() if len(v) > 1}
     if not groups:
         return []
     keys = {"miou": ".3f", "psnr": ".1f", "fscore": ".3f", "surface_field": ".3f", "build_seconds": ".0f"}
