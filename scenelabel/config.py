@@ -175,6 +175,7 @@ def resolve_grid_decay(config: BuildConfig, with_depth: bool) -> BuildConfig:
     decay = GRID_DECAY_WITH_DEPTH if with_depth else GRID_DECAY
     return dataclasses.replace(config, sampling=dataclasses.replace(sc, grid_decay=decay))
 
+
 DISTORTION_AUTO_WEIGHT = 0.002
 """The distortion weight ``"auto"`` chooses where the views see the scene well."""
 
