@@ -11,7 +11,9 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from scenelabel.render.volume import (
+    class_log_probs_from_sample_weights,
     class_log_probs_from_scores,
+    class_log_probs_from_weights,
     class_probs_from_weights,
     composite_rgb,
     depth_at_transmittance,
@@ -342,3 +344,59 @@ def test_weight_before_matches_a_float64_loop_and_ignores_nan_limits():
     np.testing.assert_allclose(got, expected, rtol=1e-12)
     assert got[2] == 0.0
 
+
+
+# ---------------------------------------------------------------- class probabilities over listed samples
+
+
+def _listed(weights: torch.Tensor, logits: torch.Tensor, order: np.ndarray):
+    """[n_rays, S] weights and [n_rays, S, C] logits as a flat list of samples in ``order``, each with its ray."""
+    n_rays, n_samples = weights.shape
+    rays = torch.arange(n_rays).repeat_interleave(n_samples)[order]
+    return weights.reshape(-1)[order], logits.reshape(n_rays * n_samples, -1)[order], rays
+
+
+def test_class_log_probs_over_listed_samples_match_the_padded_form_and_the_float64_loop():
+    """The same eq. 7 as class_log_probs_from_weights, values and gradients, with the samples in any
+    order; a ray without weight is uniform; the naive float64 loop agrees."""
+    rng = np.random.default_rng(5)
+    d = random_rays(rng)
+    d["sigmas"][2] = 0.0  # an empty ray
+    w, _, _ = weights_from_density(torch.tensor(d["sigmas"]), torch.tensor(d["deltas"]))
+    ref_probs = naive_render(**d)[3]
+    for order in (np.arange(w.numel()), rng.permutation(w.numel())):
+        w1 = w.clone().requires_grad_()
+        l1 = torch.tensor(d["logits"], requires_grad=True)
+        padded = class_log_probs_from_weights(w1, l1)
+        w2 = w.clone().requires_grad_()
+        l2 = torch.tensor(d["logits"], requires_grad=True)
+        flat_w, flat_l, rays = _listed(w2, l2, order)
+        listed = class_log_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0])
+        torch.testing.assert_close(listed, padded, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(listed.exp().detach().numpy(), ref_probs, atol=1e-12)
+        pick = torch.tensor(rng.normal(size=padded.shape))
+        (padded * pick).sum().backward()
+        (listed * pick).sum().backward()
+        torch.testing.assert_close(w2.grad, w1.grad, rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(l2.grad, l1.grad, rtol=1e-10, atol=1e-12)
+    empty = class_log_probs_from_sample_weights(torch.zeros(0), torch.zeros(0, 4), torch.zeros(0, dtype=torch.int64), 3)
+    torch.testing.assert_close(empty, torch.full((3, 4), -math.log(4)))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_class_log_probs_over_listed_samples_finite_at_the_extremes(dtype):
+    """σ/δ sweep (weights from 0 to 1) and logits up to ±1e4 (a softmax that underflows in float32):
+    finite log-probabilities and gradients, rows that sum to 1 where the ray has weight."""
+    pairs = list(itertools.product(SIGMAS, DELTAS))
+    sig = torch.tensor([[s, 1.0, 0.0] for s, _ in pairs], dtype=torch.float64)
+    dl = torch.tensor([[d, 0.5, 0.5] for _, d in pairs], dtype=torch.float64)
+    w, _, _ = weights_from_density(sig, dl)
+    w = w.to(dtype).requires_grad_()
+    logits = (torch.randn(len(pairs), 3, 4, dtype=torch.float64) * 1e4).to(dtype).requires_grad_()
+    flat_w, flat_l, rays = _listed(w, logits, np.arange(w.numel()))
+    out = class_log_probs_from_sample_weights(flat_w, flat_l, rays, len(pairs))
+    assert torch.all(torch.isfinite(out))
+    hit = w.detach().sum(-1) > 1e-10
+    np.testing.assert_allclose(out.detach().exp().sum(-1)[hit].double().numpy(), 1.0, atol=1e-5)
+    out.sum().backward()
+    assert torch.all(torch.isfinite(w.grad)) and torch.all(torch.isfinite(logits.grad))

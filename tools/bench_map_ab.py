@@ -15,6 +15,7 @@ in front of them, the F-score at 5 cm, and the UNKNOWN fraction. Run it on an id
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -91,9 +92,20 @@ def measure(code_root: Path, scene: str, scene_dir: Path, build_dir: Path) -> di
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _rev(rev: str) -> str:
+def short_rev(rev: str) -> str:
+    """The abbreviated commit of git revision ``rev``."""
     return subprocess.run(["git", "rev-parse", "--short", rev], capture_output=True, text=True, cwd=REPO,
                           check=True).stdout.strip()
+
+
+@contextlib.contextmanager
+def base_worktree(rev: str, path: Path):
+    """A detached git worktree of ``rev`` at ``path`` for the duration (removed after)."""
+    subprocess.run(["git", "worktree", "add", "--detach", str(path), rev], cwd=REPO, check=True, capture_output=True)
+    try:
+        yield path
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(path)], cwd=REPO, capture_output=True)
 
 
 def write_markdown(r: dict, path: Path, command: str) -> None:
@@ -130,13 +142,10 @@ def main() -> None:
     args = parser.parse_args()
     from bench_suite import code_version  # tools/bench_suite.py, beside this script
 
-    result = {"base": _rev(args.base), "new": code_version(), "rows": []}
+    result = {"base": short_rev(args.base), "new": code_version(), "rows": []}
     with tempfile.TemporaryDirectory() as workdir:
         work = Path(workdir)
-        base_tree = work / "base"
-        subprocess.run(["git", "worktree", "add", "--detach", str(base_tree), args.base], cwd=REPO, check=True,
-                       capture_output=True)
-        try:
+        with base_worktree(args.base, work / "base") as base_tree:
             for scene in args.scenes:
                 print(f"{scene}: building ...", flush=True)
                 scene_dir, build_dir, tuning = build_room(scene, work)
@@ -145,8 +154,6 @@ def main() -> None:
                        "new": measure(REPO, scene, scene_dir, build_dir)}
                 print(f"  {row}", flush=True)
                 result["rows"].append(row)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(base_tree)], cwd=REPO, capture_output=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
     write_markdown(result, args.out, " ".join(["python tools/bench_map_ab.py", *sys.argv[1:]]))
     print(f"wrote {args.out}")

@@ -20,8 +20,8 @@ from scenelabel.render.sampling import (
     ray_aabb_intersect,
 )
 from scenelabel.render.volume import (
+    class_log_probs_from_sample_weights,
     class_log_probs_from_scores,
-    class_log_probs_from_weights,
     composite_rgb,
     depth_at_transmittance,
     depth_from_weights,
@@ -311,10 +311,12 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
     t_mids = 0.5 * (starts + ends)
     packed_sigmas = zeros.index_put(packed, sigmas.to(zeros.dtype))
     weights, _, _ = weights_from_density(packed_sigmas, ends - starts)
-    logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
-    composite_classes = (
-        class_log_probs_from_scores if field.config.semantic_rendering == "scores" else class_log_probs_from_weights
-    )
+    semantic_weights = weights.detach() if options.detach_semantic_weights else weights
+    if field.config.semantic_rendering == "scores":
+        logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
+        class_log_probs = class_log_probs_from_scores(semantic_weights, logits)
+    else:  # over the evaluated samples only: rays are padded to the longest
+        class_log_probs = class_log_probs_from_sample_weights(semantic_weights[packed], class_logits, rows, n_rays)
     rgb = None
     if rgbs is not None:
         rgb = composite_rgb(weights, t_starts.new_zeros(n_rays, K, 3).index_put(packed, rgbs.to(zeros.dtype)), options.background)
@@ -327,7 +329,7 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
         rgb=rgb,
         depth=depth,
         opacity=weights.sum(-1),
-        class_log_probs=composite_classes(weights.detach() if options.detach_semantic_weights else weights, logits),
+        class_log_probs=class_log_probs,
         n_evaluated=int(rows.shape[0]),
         distortion=distortion_from_weights(weights, s_starts, s_ends),
         t_opaque=depth_at_transmittance(packed_sigmas.detach(), starts, ends, OPAQUE_TRANS),

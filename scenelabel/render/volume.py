@@ -47,6 +47,7 @@ __all__ = [
     "depth_of_max_weight",
     "class_probs_from_weights",
     "class_log_probs_from_weights",
+    "class_log_probs_from_sample_weights",
     "class_log_probs_from_scores",
     "distortion_from_weights",
     "weight_before",
@@ -249,6 +250,49 @@ def class_log_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tens
     norm = torch.logsumexp(log_w, dim=-1, keepdim=True)  # [n_rays, 1]
     uniform = torch.full_like(joint, -math.log(n_classes))
     return torch.where(hit, joint - norm, uniform)
+
+
+def class_log_probs_from_sample_weights(
+    weights: torch.Tensor, class_logits: torch.Tensor, ray_indices: torch.Tensor, n_rays: int
+) -> torch.Tensor:
+    """:func:`class_log_probs_from_weights` (eq. 7 in log space) over samples given as a flat list
+    with each sample's ray, not padded to [n_rays, n_samples]: the work follows the samples that
+    exist, not the longest ray.
+
+    Per ray and class, log Σ_i w_i softmax(l_i)_c is a segment log-sum-exp: the per-ray largest
+    term (detached: the result and its gradient do not depend on the shift) is subtracted before
+    the exponentials are summed (``index_add``). A ray whose weights sum to at most OPACITY_EPS
+    gets the uniform distribution; a ray with more has a term equal to 1 after the shift, so the
+    sum is at least 1 and its log is finite. A sample of weight 0 drops out exactly (log 0 = -inf:
+    its weight is clamped to the dtype's smallest normal before the log only so that the discarded
+    branch has a finite gradient).
+
+    Args:
+        weights: [n] sample weights (eq. 5), each ray's samples anywhere in the list.
+        class_logits: [n, C].
+        ray_indices: [n] int64, the ray of each sample, in [0, n_rays).
+        n_rays: number of rays.
+    Returns:
+        [n_rays, C] log-probabilities (each row's exp sums to 1).
+    """
+    n_classes = class_logits.shape[-1]
+    log_p = torch.log_softmax(class_logits.to(weights.dtype), dim=-1)  # [n, C]
+    log_w = torch.log(weights.clamp(min=torch.finfo(weights.dtype).tiny))
+    log_w = torch.where(weights > 0, log_w, torch.full_like(log_w, -torch.inf))
+    terms = log_w[:, None] + log_p  # [n, C]
+    shift = terms.new_full((n_rays, n_classes), -torch.inf).scatter_reduce(
+        0, ray_indices[:, None].expand(-1, n_classes), terms.detach(), "amax"
+    )
+    shift = torch.where(torch.isfinite(shift), shift, torch.zeros_like(shift))  # [n_rays, C]
+    sums = terms.new_zeros(n_rays, n_classes).index_add(0, ray_indices, torch.exp(terms - shift[ray_indices]))
+    # Σ w over the samples of positive weight: as in the padded form, a sample of weight 0 has dropped
+    # out and gets no gradient (through the normalisation either)
+    positive = torch.where(weights > 0, weights, torch.zeros_like(weights))
+    opacity = weights.new_zeros(n_rays).index_add(0, ray_indices, positive)[:, None]  # [n_rays, 1]
+    hit = opacity > OPACITY_EPS
+    joint = torch.log(torch.where(hit, sums, torch.ones_like(sums))) + shift  # sums >= 1 where hit
+    norm = torch.log(torch.where(hit, opacity, torch.ones_like(opacity)))
+    return torch.where(hit, joint - norm, torch.full_like(joint, -math.log(n_classes)))
 
 
 def class_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
