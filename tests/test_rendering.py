@@ -345,7 +345,6 @@ def test_weight_before_matches_a_float64_loop_and_ignores_nan_limits():
     assert got[2] == 0.0
 
 
-
 # ---------------------------------------------------------------- class probabilities over listed samples
 
 
