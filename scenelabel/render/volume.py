@@ -277,8 +277,9 @@ def class_log_probs_from_sample_weights(
     """
     n_classes = class_logits.shape[-1]
     log_p = torch.log_softmax(class_logits.to(weights.dtype), dim=-1)  # [n, C]
+    weighted = weights > 0  # [n]
     log_w = torch.log(weights.clamp(min=torch.finfo(weights.dtype).tiny))
-    log_w = torch.where(weights > 0, log_w, torch.full_like(log_w, -torch.inf))
+    log_w = torch.where(weighted, log_w, torch.full_like(log_w, -torch.inf))
     terms = log_w[:, None] + log_p  # [n, C]
     shift = terms.new_full((n_rays, n_classes), -torch.inf).scatter_reduce(
         0, ray_indices[:, None].expand(-1, n_classes), terms.detach(), "amax"
@@ -287,7 +288,7 @@ def class_log_probs_from_sample_weights(
     sums = terms.new_zeros(n_rays, n_classes).index_add(0, ray_indices, torch.exp(terms - shift[ray_indices]))
     # Σ w over the samples of positive weight: as in the padded form, a sample of weight 0 has dropped
     # out and gets no gradient (through the normalisation either)
-    positive = torch.where(weights > 0, weights, torch.zeros_like(weights))
+    positive = torch.where(weighted, weights, torch.zeros_like(weights))
     opacity = weights.new_zeros(n_rays).index_add(0, ray_indices, positive)[:, None]  # [n_rays, 1]
     hit = opacity > OPACITY_EPS
     joint = torch.log(torch.where(hit, sums, torch.ones_like(sums))) + shift  # sums >= 1 where hit
