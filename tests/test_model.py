@@ -107,6 +107,18 @@ def test_skip_mlp_matches_a_hand_written_forward():
     h = torch.relu(lin[2](torch.cat([h, x], -1)))  # the input again before layer 2
     torch.testing.assert_close(mlp(x), lin[3](h))
     assert [m.in_features for m in lin] == [5, 8, 13, 8]
+    torch.testing.assert_close(mlp(x, n_out=2), lin[3](h)[:, :2])  # only the first outputs
+
+
+@pytest.mark.parametrize("network", sorted(NETWORKS))
+@pytest.mark.parametrize("head", ["linear", "density"])
+def test_density_alone_is_the_full_forwards_density(head, network):
+    """``density`` computes only the trunk's density rows; σ is the full forward's."""
+    torch.manual_seed(3)
+    model = FieldNetwork(FieldConfig(**NETWORKS[network], class_head=head), 5, AABB)
+    pts = torch.rand(64, 3) * 2 - 1
+    sigmas, _, _ = model(pts, torch.nn.functional.normalize(torch.randn(64, 3), dim=-1))
+    torch.testing.assert_close(model.density(pts), sigmas)
 
 
 @pytest.mark.parametrize("name", ["paper", "multihead", "tiny", "dense"])

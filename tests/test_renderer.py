@@ -97,6 +97,26 @@ def test_render_rays_matches_a_naive_float64_loop():
     np.testing.assert_allclose(out.class_log_probs.exp().double().numpy(), probs, atol=2e-5)
 
 
+def test_render_rays_evaluates_only_intervals_of_length_in_occupied_space():
+    """The field sees each ray's intervals of positive length whose middle the grid holds
+    occupied, nothing else; rays with no such interval composite to nothing."""
+    field = SlabField(sigma=4.0)
+    o, d, t_min, t_max = rays()
+    t_max = torch.where(torch.arange(len(t_max)) % 3 == 0, t_min, t_max)  # every third ray: an empty interval
+    step = 0.05
+    out = render_rays(field, not_left_half, o, d, t_min, t_max, Marching(step, 64))
+    expected = 0
+    for a, b, origin, direction in zip(t_min.tolist(), t_max.tolist(), o, d):
+        starts = torch.arange(64) * step + a
+        middles = 0.5 * (starts + torch.minimum(starts + step, torch.tensor(b)))[starts < b]
+        expected += int(not_left_half(origin + middles[:, None] * direction).sum())
+    assert out.n_evaluated == field.calls == expected
+    empty = torch.arange(len(t_max)) % 3 == 0
+    torch.testing.assert_close(out.opacity[empty], torch.zeros(int(empty.sum())))
+    none = render_rays(field, not_left_half, o, d, t_max + 1, t_max, Marching(step, 64))  # no interval at all
+    assert none.n_evaluated == 0 and torch.isfinite(none.rgb).all() and torch.isfinite(none.depth).all()
+
+
 def test_early_stop_with_zero_threshold_is_the_full_composite():
     for rendering in ("probs", "scores"):
         field = SlabField(sigma=30.0, semantic_rendering=rendering)

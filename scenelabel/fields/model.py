@@ -75,13 +75,17 @@ class SkipMLP(nn.Sequential):
         super().__init__(*mods)
         self.skip = skip
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        h, layer = x, 0
-        for mod in self:
+    def forward(self, x: torch.Tensor, n_out: int | None = None) -> torch.Tensor:
+        """x [n, in_dim] -> [n, out_dim], or with ``n_out`` only the first n_out outputs [n, n_out]
+        (the last layer's other rows are not computed)."""
+        h, layer, last = x, 0, len(self) - 1
+        for i, mod in enumerate(self):
             if isinstance(mod, nn.Linear):
                 if layer == self.skip:
                     h = torch.cat([h, x], -1)
                 layer += 1
+            if i == last and n_out is not None:
+                return F.linear(h, mod.weight[:n_out], mod.bias[:n_out])
             h = mod(h)
         return h
 
@@ -144,15 +148,20 @@ class FieldNetwork(nn.Module):
         ids = {id(p) for p in self.encoding.parameters()}
         return [p for p in self.parameters() if id(p) not in ids]
 
-    def _trunk(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _trunk(self, points: torch.Tensor, features: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3] -> σ [n], features h [n, F], raw densities [n, 1] (σ's) or [n, C] (σ_j's).
 
         h is the trunk's hidden layer, or with ``head="direct"`` the grid's colour and logit
-        channels. Points the warp maps outside [-1, 1]^3 (only a forward warp has such points
-        inside the scene box: behind or beside its reference frustum) have σ = 0.
+        channels. With ``features=False`` a network's last layer computes only the density rows and
+        h is [n, 0] (a grid reads all its channels either way). Points the warp maps
+        outside [-1, 1]^3 (only a forward warp has such points inside the scene box: behind or
+        beside its reference frustum) have σ = 0.
         """
         unit = self.warp(points)
-        out = self.encoding(unit) if self.direct else self.trunk(self.encoding(unit))
+        if self.direct:
+            out = self.encoding(unit)
+        else:
+            out = self.trunk(self.encoding(unit), None if features else self._n_density)
         raw, h = out[:, : self._n_density], out[:, self._n_density :]
         if not self.direct:
             h = F.relu(h)
@@ -172,7 +181,7 @@ class FieldNetwork(nn.Module):
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """points [n, 3] -> σ [n] (no colour or class work)."""
-        return self._trunk(points)[0]
+        return self._trunk(points, features=False)[0]
 
     def semantics(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """points [n, 3] -> σ [n], class_logits [n, C] (no colour work)."""

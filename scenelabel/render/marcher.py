@@ -151,10 +151,13 @@ def render_rays(
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, jitter)  # [n_rays, S]
-    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
-    keep = (t_ends > t_starts) & occupancy(points)  # [n_rays, S]
-    rows, cols = keep.nonzero(as_tuple=True)  # row-major: each ray's samples in order
-    samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
+    # [n_rays, S] is as wide as the longest ray: the grid is read only at the intervals of positive length
+    rows, cols = (t_ends > t_starts).nonzero(as_tuple=True)  # row-major: each ray's samples in order
+    t_mids = 0.5 * (_take(t_starts, rows, cols) + _take(t_ends, rows, cols))  # [m]
+    points = origins.index_select(0, rows) + t_mids[:, None] * directions.index_select(0, rows)  # [m, 3]
+    keep = occupancy(points).nonzero().squeeze(1)  # [k]
+    rows, cols = rows.index_select(0, keep), cols.index_select(0, keep)
+    samples = _evaluate(field, points.index_select(0, keep), directions.index_select(0, rows), options.with_rgb)
     return _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
 
 
@@ -277,6 +280,19 @@ def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Ten
     return origins[:, None, :] + t_mids[..., None] * directions[:, None, :]
 
 
+def _take(values: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+    """``values[rows, cols]`` for [n_rays, S] values and [n] indices, as one gather along the flat
+    array (index_select, which the CPU does faster than a two-index lookup): [n]."""
+    return values.reshape(-1).index_select(0, rows * values.shape[1] + cols)
+
+
+def _padded(values: torch.Tensor, packed: torch.Tensor, shape: tuple[int, int], dtype: torch.dtype) -> torch.Tensor:
+    """[n, ...] values placed at flat indices ``packed`` [n] of ``shape`` (n_rays, K), zeros
+    elsewhere: [n_rays, K, ...] of ``dtype`` (one index_copy, differentiable in ``values``)."""
+    out = torch.zeros(shape[0] * shape[1], *values.shape[1:], dtype=dtype, device=values.device)
+    return out.index_copy(0, packed, values.to(dtype)).reshape(*shape, *values.shape[1:])
+
+
 def _evaluate(field, points: torch.Tensor, directions: torch.Tensor, with_rgb: bool):
     """The field at [n, 3] points: (sigmas [n], rgbs [n, 3] or None, class_logits [n, C])."""
     if with_rgb:
@@ -304,22 +320,23 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
     counts = torch.bincount(rows, minlength=n_rays)  # [n_rays]
     K = max(int(counts.max()) if counts.numel() else 0, 1)
     first = torch.cumsum(counts, 0) - counts  # where each ray's samples begin in ``rows``
-    packed = (rows, torch.arange(len(rows), device=rows.device) - first[rows])
-    zeros = t_starts.new_zeros(n_rays, K)
-    starts = zeros.index_put(packed, t_starts[rows, cols])
-    ends = zeros.index_put(packed, t_ends[rows, cols])
+    packed = rows * K + torch.arange(len(rows), device=rows.device) - first.index_select(0, rows)  # [n] in [n_rays * K]
+    dtype = t_starts.dtype
+    starts = _padded(_take(t_starts, rows, cols), packed, (n_rays, K), dtype)
+    ends = _padded(_take(t_ends, rows, cols), packed, (n_rays, K), dtype)
     t_mids = 0.5 * (starts + ends)
-    packed_sigmas = zeros.index_put(packed, sigmas.to(zeros.dtype))
+    packed_sigmas = _padded(sigmas, packed, (n_rays, K), dtype)
     weights, _, _ = weights_from_density(packed_sigmas, ends - starts)
     semantic_weights = weights.detach() if options.detach_semantic_weights else weights
     if field.config.semantic_rendering == "scores":
-        logits = t_starts.new_zeros(n_rays, K, field.num_classes).index_put(packed, class_logits.to(zeros.dtype))
+        logits = _padded(class_logits, packed, (n_rays, K), dtype)
         class_log_probs = class_log_probs_from_scores(semantic_weights, logits)
     else:  # over the evaluated samples only: rays are padded to the longest
-        class_log_probs = class_log_probs_from_sample_weights(semantic_weights[packed], class_logits, rows, n_rays)
+        sample_weights = semantic_weights.reshape(-1).index_select(0, packed)
+        class_log_probs = class_log_probs_from_sample_weights(sample_weights, class_logits, rows, n_rays)
     rgb = None
     if rgbs is not None:
-        rgb = composite_rgb(weights, t_starts.new_zeros(n_rays, K, 3).index_put(packed, rgbs.to(zeros.dtype)), options.background)
+        rgb = composite_rgb(weights, _padded(rgbs, packed, (n_rays, K), dtype), options.background)
     # A ray whose interval is empty (t_max < t_min: it misses the box or [near, far]) reports its
     # t_max (≥ 0): the requested far, or where it leaves the box.
     t_hi = t_max.clamp(min=0.0)

@@ -224,6 +224,13 @@ def depth_from_weights(
     return torch.minimum(torch.maximum(depth, near), far)
 
 
+def _log_softmax(logits: torch.Tensor) -> torch.Tensor:
+    """log softmax over the last axis as ``logits - logsumexp(logits)``: torch.log_softmax's values
+    (logsumexp subtracts the row's largest logit first, so nothing overflows), faster on the CPU
+    for rows as short as a room's classes (torch's log_softmax kernel is made for long rows)."""
+    return logits - torch.logsumexp(logits, dim=-1, keepdim=True)
+
+
 def class_log_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
     """log P_c with P = Σ w_i softmax(l_i) / Σ w_i (eq. 7), computed stably in log space.
 
@@ -245,7 +252,7 @@ def class_log_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tens
     safe_weights = torch.where(hit, weights, torch.ones_like(weights))
     log_w = torch.log(safe_weights.clamp(min=torch.finfo(weights.dtype).tiny))
     log_w = torch.where(safe_weights > 0, log_w, torch.full_like(log_w, -torch.inf))
-    log_p = torch.log_softmax(class_logits.to(weights.dtype), dim=-1)  # [n_rays, n_samples, C]
+    log_p = _log_softmax(class_logits.to(weights.dtype))  # [n_rays, n_samples, C]
     joint = torch.logsumexp(log_w[..., None] + log_p, dim=-2)  # [n_rays, C]
     norm = torch.logsumexp(log_w, dim=-1, keepdim=True)  # [n_rays, 1]
     uniform = torch.full_like(joint, -math.log(n_classes))
@@ -276,7 +283,7 @@ def class_log_probs_from_sample_weights(
         [n_rays, C] log-probabilities (each row's exp sums to 1).
     """
     n_classes = class_logits.shape[-1]
-    log_p = torch.log_softmax(class_logits.to(weights.dtype), dim=-1)  # [n, C]
+    log_p = _log_softmax(class_logits.to(weights.dtype))  # [n, C]
     weighted = weights > 0  # [n]
     log_w = torch.log(weights.clamp(min=torch.finfo(weights.dtype).tiny))
     log_w = torch.where(weighted, log_w, torch.full_like(log_w, -torch.inf))
@@ -285,7 +292,7 @@ def class_log_probs_from_sample_weights(
         0, ray_indices[:, None].expand(-1, n_classes), terms.detach(), "amax"
     )
     shift = torch.where(torch.isfinite(shift), shift, torch.zeros_like(shift))  # [n_rays, C]
-    sums = terms.new_zeros(n_rays, n_classes).index_add(0, ray_indices, torch.exp(terms - shift[ray_indices]))
+    sums = terms.new_zeros(n_rays, n_classes).index_add(0, ray_indices, torch.exp(terms - shift.index_select(0, ray_indices)))
     # Σ w over the samples of positive weight: as in the padded form, a sample of weight 0 has dropped
     # out and gets no gradient (through the normalisation either)
     positive = torch.where(weighted, weights, torch.zeros_like(weights))
@@ -322,7 +329,7 @@ def class_log_probs_from_scores(weights: torch.Tensor, class_logits: torch.Tenso
         [n_rays, C] log-probabilities (each row's exp sums to 1).
     """
     dtype = torch.promote_types(weights.dtype, torch.float32)
-    return torch.log_softmax(composite(weights.to(dtype), class_logits.to(dtype)), dim=-1)
+    return _log_softmax(composite(weights.to(dtype), class_logits.to(dtype)))
 
 
 def distortion_from_weights(weights: torch.Tensor, s_starts: torch.Tensor, s_ends: torch.Tensor) -> torch.Tensor:
