@@ -60,21 +60,27 @@ def _nearest_depth(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def _agreements(samples: list[tuple], cameras: Cameras, depths: list, scale: float) -> int:
-    """How many sampled pixels agree with their pair's second view when centres are scaled by ``scale``."""
-    total = 0
+def _agreements(samples: list[tuple], cameras: Cameras, depths: list, scales: np.ndarray) -> np.ndarray:
+    """How many sampled pixels agree with their pair's second view when centres are multiplied by
+    each of ``scales`` [S]: [S] counts.
+
+    Seen from view j, the scene with centres times s and a pixel's point at its measured distance m
+    is the unscaled scene with that point at m / s, magnified s times: the same pixel, at s times
+    the distance. So all scales are one projection through view j's own pose.
+    """
+    scales = np.asarray(scales, dtype=np.float64)
+    totals = np.zeros(len(scales), dtype=np.int64)
     for j, origin, directions, measured in samples:
-        points = scale * origin + measured[:, None] * directions  # [k, 3] in metres
-        c2w = cameras.c2w[j].copy()
-        c2w[:3, 3] *= scale  # view j's centre at this scale
-        uv, _, predicted = project_points(
-            points, c2w, cameras.fx[j], cameras.fy[j], cameras.cx[j], cameras.cy[j], cameras.distortion[j],
-            cameras.model[j],
-        )  # NaN where view j's lens does not see the point; predicted: distance from view j
-        seen = _nearest_depth(depths[j], uv)
+        points = origin + (measured[None, :, None] / scales[:, None, None]) * directions[None]  # [S, k, 3], pose units
+        uv, _, distance = project_points(
+            points.reshape(-1, 3), cameras.c2w[j], cameras.fx[j], cameras.fy[j], cameras.cx[j], cameras.cy[j],
+            cameras.distortion[j], cameras.model[j],
+        )  # NaN where view j's lens does not see the point; distance: from view j
+        predicted = scales[:, None] * distance.reshape(len(scales), -1)  # [S, k] metres
+        seen = _nearest_depth(depths[j], uv).reshape(len(scales), -1)
         with np.errstate(invalid="ignore"):
-            total += int(np.sum(np.abs(predicted - seen) < AGREEMENT * seen))
-    return total
+            totals += np.sum(np.abs(predicted - seen) < AGREEMENT * seen, axis=1)
+    return totals
 
 
 def scale_from_depth(cameras: Cameras, depths: list[np.ndarray | None], seed: int = 0) -> float | None:
@@ -103,15 +109,15 @@ def scale_from_depth(cameras: Cameras, depths: list[np.ndarray | None], seed: in
         pick = rng.choice(valid, min(PIXELS_PER_VIEW, len(valid)), replace=False) if len(valid) else valid
         samples.append((j, origins[0], directions[pick], measured[pick]))
 
-    def count(s: float, per_pair: int = PIXELS_PER_VIEW) -> int:
-        return _agreements([(j, o, d[:per_pair], m[:per_pair]) for j, o, d, m in samples], cameras, depths, s)
+    def counts(scales: np.ndarray, per_pair: int = PIXELS_PER_VIEW) -> np.ndarray:
+        return _agreements([(j, o, d[:per_pair], m[:per_pair]) for j, o, d, m in samples], cameras, depths, scales)
 
     candidates = np.exp(np.arange(-SEARCH_DECADES * np.log(10), SEARCH_DECADES * np.log(10), np.log(COARSE_RATIO)))
-    best = float(candidates[int(np.argmax([count(s, COARSE_PIXELS) for s in candidates]))])
+    best = float(candidates[int(np.argmax(counts(candidates, COARSE_PIXELS)))])
     for ratio in (COARSE_RATIO, 1.0 + AGREEMENT / 2):  # refine: +-one coarse step, then +-half the agreement band
         fine = best * np.exp(np.linspace(-np.log(ratio), np.log(ratio), 21))
-        best = float(fine[int(np.argmax([count(s) for s in fine]))])
-    peak = count(best)
-    if peak < MIN_AGREEING or peak < FLAT_RATIO * max(count(best * 10.0), count(best / 10.0)):
+        best = float(fine[int(np.argmax(counts(fine)))])
+    peak, at_ten, at_tenth = counts(np.array([best, best * 10.0, best / 10.0]))
+    if peak < MIN_AGREEING or peak < FLAT_RATIO * max(at_ten, at_tenth):
         return None
     return best
