@@ -198,9 +198,9 @@ def test_segment_refuses_to_overwrite_and_sfm_stops_on_unrelated_photos(tmp_path
 @pytest.mark.parametrize(
     "flags, steps, budget",
     [
-        ([], 2000, 150.0),  # the default build: at most 2000 steps or 150 s
+        ([], "auto", 150.0),  # the default build: at most the steps "auto" chooses or 150 s
         (["--steps", "5000"], 5000, None),  # the steps asked for, not the preset's budget
-        (["--time-budget", "60"], 2000, 60.0),
+        (["--time-budget", "60"], "auto", 60.0),
         (["--steps", "5000", "--time-budget", "600"], 5000, 600.0),
     ],
 )

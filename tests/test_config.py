@@ -56,10 +56,13 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"distortion_start": -0.1}},
         {"train": {"background": [1.0, 2.0, 0.0]}},
         {"train": {"background": [1.0, 1.0]}},
+        {"train": {"steps": -1}},
+        {"train": {"steps": 1.5}},
+        {"train": {"steps": "many"}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|steps|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
         preset("fast", overrides)
 
 

@@ -328,7 +328,7 @@ def build_scene(scene: str | Path, out_dir: str | Path, config: dict, device: st
         try:
             with _capture(log):
                 cfg = config_from_dict(config)
-                log.line(f"preset {cfg.preset}, {cfg.train.steps} steps, seed {cfg.train.seed}, device {device or 'auto'}")
+                log.line(f"preset {cfg.preset}, steps {cfg.train.steps}, seed {cfg.train.seed}, device {device or 'auto'}")
                 result = build(scene, out_dir, cfg, progress=True, device=device)
         except (KeyboardInterrupt, TrainingInterrupted) as err:
             log.line(f"interrupted after {time.perf_counter() - start:.1f} s: {err or type(err).__name__}")
