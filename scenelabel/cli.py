@@ -61,7 +61,7 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
     )
     p.add_argument("--steps", type=int, help="training steps (alone: no time budget)")
     p.add_argument(
-        "--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds (fast: 150 by default)"
+        "--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds (fast: 150 by default, 75 with sensor depth)"
     )
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
     p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all); "

@@ -175,16 +175,26 @@ rooms of docs/depth_step_count.md (one run) 1600 steps kept 2000's depth error, 
 F-score, with held-out mIoU at most 0.011 lower and PSNR at most 0.8 dB lower, in 0.70-0.80 of the
 build time; 1300 lost up to 0.022 mIoU (hall-10x6)."""
 
+TIME_BUDGET = 150.0
+"""``train.time_budget`` "auto" (the fast preset's) without sensor depth: seconds of training."""
+
+TIME_BUDGET_WITH_DEPTH = 75.0
+"""``train.time_budget`` "auto" with sensor depth: at most STEPS_WITH_DEPTH steps or this many seconds,
+so that a build with depth (training, evaluation, setup) stays within about 90 s on 2 cores."""
+
 
 def resolve_by_depth(config: BuildConfig, with_depth: bool) -> BuildConfig:
     """``config`` with the settings whose "auto" follows the training rays' sensor depth made numbers:
-    ``sampling.grid_decay`` becomes GRID_DECAY_WITH_DEPTH and ``train.steps`` STEPS_WITH_DEPTH when the
-    rays carry depth the build trains on (``with_depth``), else GRID_DECAY and STEPS."""
+    ``sampling.grid_decay``, ``train.steps`` and ``train.time_budget`` become GRID_DECAY_WITH_DEPTH,
+    STEPS_WITH_DEPTH and TIME_BUDGET_WITH_DEPTH when the rays carry depth the build trains on
+    (``with_depth``), else GRID_DECAY, STEPS and TIME_BUDGET."""
     sc, tc = config.sampling, config.train
     if sc.grid_decay == AUTO:
         sc = dataclasses.replace(sc, grid_decay=GRID_DECAY_WITH_DEPTH if with_depth else GRID_DECAY)
     if tc.steps == AUTO:
         tc = dataclasses.replace(tc, steps=STEPS_WITH_DEPTH if with_depth else STEPS)
+    if tc.time_budget == AUTO:
+        tc = dataclasses.replace(tc, time_budget=TIME_BUDGET_WITH_DEPTH if with_depth else TIME_BUDGET)
     return dataclasses.replace(config, sampling=sc, train=tc)
 
 
@@ -252,7 +262,9 @@ class TrainConfig:
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
-    time_budget: float | None = None  # seconds; training stops early when spent
+    # seconds; training stops early when spent (None: no budget). "auto": TIME_BUDGET, or
+    # TIME_BUDGET_WITH_DEPTH where the training rays carry sensor depth; the build saves the number
+    time_budget: float | str | None = None
     seed: int = 0
     # every holdout-th view is held out for evaluation; 0 = train on all. Not used when the input
     # has its own splits (Scene.splits, e.g. transforms_train / _val / _test.json): train on its
@@ -269,6 +281,11 @@ class TrainConfig:
         steps = self.steps
         if steps != AUTO and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 0):
             raise ConfigError(f"train.steps must be \"auto\" or an integer >= 0, got {steps!r}")
+        budget = self.time_budget
+        if budget not in (None, AUTO) and (
+            isinstance(budget, bool) or not (isinstance(budget, (int, float)) and math.isfinite(budget) and budget > 0)
+        ):
+            raise ConfigError(f"train.time_budget must be a number of seconds > 0, \"auto\" or null, got {budget!r}")
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
         bg = self.background
         if isinstance(bg, str):
@@ -321,9 +338,10 @@ _MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decayi
 
 PRESETS: dict[str, dict] = {
     # the default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
-    # training, whichever comes first, so that a default build's time is known before it starts
-    # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m)
-    "fast": {"train": {"time_budget": 150.0}},
+    # training, whichever comes first (with sensor depth 1600 steps or 75 s: train.steps and
+    # train.time_budget "auto"), so that a default build's time is known before it starts
+    # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth)
+    "fast": {"train": {"time_budget": AUTO}},
     # captures with sensor depth (RGB-D, phone LiDAR; docs/captures.md) when time matters more than
     # labels: the depth terms make surfaces early, so 800 steps (at most 75 s of training) give the
     # default build's geometry (depth, surface labels, F-score) in about 60 % of its time, but held-out

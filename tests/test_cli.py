@@ -198,7 +198,7 @@ def test_segment_refuses_to_overwrite_and_sfm_stops_on_unrelated_photos(tmp_path
 @pytest.mark.parametrize(
     "flags, steps, budget",
     [
-        ([], "auto", 150.0),  # the default build: at most the steps "auto" chooses or 150 s
+        ([], "auto", "auto"),  # the default build: the steps and budget "auto" chooses by the capture's depth
         (["--steps", "5000"], 5000, None),  # the steps asked for, not the preset's budget
         (["--time-budget", "60"], "auto", 60.0),
         (["--steps", "5000", "--time-budget", "600"], 5000, 600.0),

@@ -59,10 +59,13 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"steps": -1}},
         {"train": {"steps": 1.5}},
         {"train": {"steps": "many"}},
+        {"train": {"time_budget": 0.0}},
+        {"train": {"time_budget": float("inf")}},
+        {"train": {"time_budget": "soon"}},
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
         preset("fast", overrides)
 
 

@@ -371,22 +371,30 @@ def test_sensor_depth_on_held_out_views_only_leaves_the_bounds_to_the_coarse_fit
     assert static["aabb_source"].startswith("observed geometry")
 
 
-def test_auto_grid_decay_and_steps_follow_sensor_depth(scene):
-    """sampling.grid_decay and train.steps "auto": GRID_DECAY_WITH_DEPTH and STEPS_WITH_DEPTH where the
-    training rays carry sensor depth the build trains on, GRID_DECAY and STEPS otherwise (no depth, or
+def test_auto_grid_decay_steps_and_budget_follow_sensor_depth(scene):
+    """sampling.grid_decay, train.steps and train.time_budget "auto": the *_WITH_DEPTH numbers where the
+    training rays carry sensor depth the build trains on, the others otherwise (no depth, or
     train.depth_weight 0); a number given is kept. The trainer's config (the one training reads and
     the checkpoint saves) holds the numbers."""
-    from scenelabel.config import GRID_DECAY, GRID_DECAY_WITH_DEPTH, STEPS, STEPS_WITH_DEPTH
+    from scenelabel.config import (
+        GRID_DECAY,
+        GRID_DECAY_WITH_DEPTH,
+        STEPS,
+        STEPS_WITH_DEPTH,
+        TIME_BUDGET,
+        TIME_BUDGET_WITH_DEPTH,
+    )
 
     plain, with_depth = load_scene(scene), _with_sensor_depth(load_scene(scene))
-    auto = {"train": {"steps": "auto"}}
+    auto = {"steps": "auto", "time_budget": "auto"}
     cases = (
-        (plain, auto, (GRID_DECAY, STEPS)),
-        (with_depth, auto, (GRID_DECAY_WITH_DEPTH, STEPS_WITH_DEPTH)),
-        (with_depth, {"train": {"steps": "auto", "depth_weight": 0.0}}, (GRID_DECAY, STEPS)),
-        (with_depth, {"sampling": {"grid_decay": 0.5}, "train": {"steps": 7}}, (0.5, 7)),
+        (plain, {"train": auto}, (GRID_DECAY, STEPS, TIME_BUDGET)),
+        (with_depth, {"train": auto}, (GRID_DECAY_WITH_DEPTH, STEPS_WITH_DEPTH, TIME_BUDGET_WITH_DEPTH)),
+        (with_depth, {"train": {**auto, "depth_weight": 0.0}}, (GRID_DECAY, STEPS, TIME_BUDGET)),
+        (with_depth, {"sampling": {"grid_decay": 0.5}, "train": {"steps": 7, "time_budget": None}}, (0.5, 7, None)),
     )
-    assert GRID_DECAY != GRID_DECAY_WITH_DEPTH and STEPS != STEPS_WITH_DEPTH
+    assert GRID_DECAY != GRID_DECAY_WITH_DEPTH and STEPS != STEPS_WITH_DEPTH and TIME_BUDGET != TIME_BUDGET_WITH_DEPTH
     for loaded, overrides, expected in cases:
         trainer, _, _ = prepare_training(loaded, preset("quick", overrides), torch.device("cpu"))
-        assert (trainer.config.sampling.grid_decay, trainer.config.train.steps) == expected
+        tc = trainer.config.train
+        assert (trainer.config.sampling.grid_decay, tc.steps, tc.time_budget) == expected

@@ -43,6 +43,7 @@ VARIANTS: dict[str, dict] = {
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
     "planes-256": {"field": {"resolutions": [64, 256]}},
+    "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
     "distortion-late": {"train": {"distortion_weight": 0.002, "distortion_start": 0.3}},
@@ -64,6 +65,10 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
     "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
     "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 1.0, "depth_ray_end": 2.0}},
+}
+# what a variant without depth changes, for the document's text (only the variants a run has)
+NOTES: dict[str, str] = {
+    "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
 DEPTH_NOTES: dict[str, str] = {
@@ -405,6 +410,8 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         f"(`train.distortion_weight` \"auto\" turns it on where at most {DISTORTION_THIN_MAX:.0%} is thinly seen; variant",
         "`distortion` forces 0.002, `no-distortion` 0).",
         "",
+        *(["Variants: " + "; ".join(f"`{v}`: {NOTES[v]}" for v in variants if v in NOTES) + ".", ""]
+          if any(v in NOTES for v in variants) else []),
         *(["Variants `phone-depth*`: the room also carries depth as a phone gives it",
            "(`scenelabel.data.synthetic.add_phone_depth`: z-depth PNGs at quarter resolution, 1.5 % noise, holes at",
            "depth edges, on dark surfaces, beyond 5 m and 1 % at random), which the build trains on (`train.depth_weight`,",
