@@ -155,7 +155,8 @@ class SamplingConfig:
 
 AUTO = "auto"
 """``train.distortion_weight``: chosen by the build from how many views see the observed geometry;
-``sampling.grid_decay`` and ``train.steps``: from whether the training rays carry sensor depth."""
+``sampling.grid_decay``, ``train.steps`` and ``train.time_budget``: from whether the training rays carry
+sensor depth."""
 
 GRID_DECAY = 0.95
 """``sampling.grid_decay`` "auto" without sensor depth."""
@@ -343,9 +344,9 @@ PRESETS: dict[str, dict] = {
     # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth)
     "fast": {"train": {"time_budget": AUTO}},
     # captures with sensor depth (RGB-D, phone LiDAR; docs/captures.md) when time matters more than
-    # labels: the depth terms make surfaces early, so 800 steps (at most 75 s of training) give the
-    # default build's geometry (depth, surface labels, F-score) in about 60 % of its time, but held-out
-    # labels lag (docs/depth.md); the default preset gives both
+    # labels: the depth terms make surfaces early, so 800 steps (at most 75 s of training) gave the
+    # geometry (depth, surface labels, F-score) of the then default 2000 steps in about 60 % of its
+    # time, but held-out labels lagged (docs/depth.md); the default preset gives both
     "rgbd": {"train": {"steps": 800, "time_budget": 75.0}},
     "quick": {  # for tests and smoke runs: a few seconds on a 2-core CPU
         "field": {"resolutions": (32, 64), "channels": 8, "hidden": 32},

@@ -316,7 +316,7 @@ class Trainer:
         self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
         # "auto" is resolved by the build (pipeline.resolve_distortion); a trainer made without it: off
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
-        self.config = resolve_by_depth(config, with_depth)  # grid_decay and steps "auto": by the rays' depth
+        self.config = resolve_by_depth(config, with_depth)  # grid_decay, steps, budget "auto": by the rays' depth
         self.state = TrainState()
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
         # the colour variance of the targets (with alpha: composited; a random background adds its
