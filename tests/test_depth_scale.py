@@ -34,6 +34,12 @@ def test_holes_do_not_bias_the_scale(scene):
     assert s * 3.0 == pytest.approx(1.0, rel=0.01)
 
 
+def test_a_few_pairs_of_a_long_sequence_still_recover_the_scale(scene):
+    # the search is capped at max_pairs view pairs (MAX_PAIRS for long captures): 3 of the toy's 32
+    s = scale_from_depth(scene.scaled(0.37).cameras, _noisy(scene), max_pairs=3)
+    assert s * 0.37 == pytest.approx(1.0, rel=0.01)
+
+
 def test_cameras_that_only_rotate_cannot_tell_the_scale(scene):
     c2w = scene.cameras.c2w.copy()
     c2w[:, :3, 3] = c2w[0, :3, 3]
