@@ -149,7 +149,7 @@ def _truth_points(scene, rng: np.random.Generator) -> np.ndarray:
     return points[rng.choice(len(points), min(TRUTH_POINTS, len(points)), replace=False)]
 
 
-def _three_d(field, scene, test_idx: list[int], boxes) -> dict:
+def three_d_metrics(field, scene, test_idx: list[int], boxes) -> dict:
     """The 3D metrics of a built field (module docstring)."""
     from scenelabel import FREE, BakedField
     from scenelabel import metrics as M
@@ -238,7 +238,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "thinly_seen": ckpt["distortion"]["thinly_seen"],
         "carved_by_depth": ckpt.get("carved_by_depth"),
         "distortion_weight": ckpt["distortion"]["weight"],
-        **_three_d(result.field, scene, test_idx, geometry.boxes),
+        **three_d_metrics(result.field, scene, test_idx, geometry.boxes),
     })
 
 
