@@ -121,6 +121,27 @@ def test_density_alone_is_the_full_forwards_density(head, network):
     torch.testing.assert_close(model.density(pts), sigmas)
 
 
+@pytest.mark.parametrize("network", sorted(NETWORKS))
+@pytest.mark.parametrize("head", ["linear", "density"])
+def test_heads_on_a_subset_of_the_features_are_the_full_forwards(head, network):
+    """``features`` then ``heads`` on some of the points (as the early-stopping renderer runs them)
+    give the full forward's σ, colour and class scores of those points; no directions: no colour."""
+    torch.manual_seed(3)
+    model = FieldNetwork(FieldConfig(**NETWORKS[network], class_head=head), 5, AABB)
+    pts = torch.rand(64, 3) * 2 - 1
+    dirs = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
+    sigmas, rgbs, logits = model(pts, dirs)
+    f_sigmas, h, raw = model.features(pts)
+    some = torch.arange(0, 64, 3)
+    h_rgbs, h_logits = model.heads(h[some], raw[some], dirs[some])
+    torch.testing.assert_close(f_sigmas, sigmas)
+    torch.testing.assert_close(h_rgbs, rgbs[some])
+    torch.testing.assert_close(h_logits, logits[some])
+    no_rgb, s_logits = model.heads(h, raw, None)
+    assert no_rgb is None
+    torch.testing.assert_close(s_logits, model.semantics(pts)[1])
+
+
 @pytest.mark.parametrize("name", ["paper", "multihead", "tiny", "dense"])
 def test_model_family_presets_build_a_field(name):
     config = preset(name).field

@@ -188,14 +188,30 @@ class FieldNetwork(nn.Module):
         sigmas, h, raw = self._trunk(points)
         return sigmas, self._class_logits(h, raw)
 
-    def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
-        sigmas, h, raw = self._trunk(points)
+    def features(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points [n, 3] -> σ [n] and the trunk's outputs h [n, F], raw [n, 1 or C] that :meth:`heads`
+        turns into colour and class scores: so that a renderer can run the heads on only the
+        points whose weight turns out to matter."""
+        return self._trunk(points)
+
+    def heads(
+        self, h: torch.Tensor, raw: torch.Tensor, directions: torch.Tensor | None
+    ) -> tuple[torch.Tensor | None, torch.Tensor]:
+        """:meth:`features`' h [n, F] and raw [n, D] with unit directions [n, 3] -> rgb [n, 3]
+        (None when ``directions`` is None: no colour work) and class_logits [n, C]."""
+        logits = self._class_logits(h, raw)
+        if directions is None:
+            return None, logits
         if self.direct:
-            return sigmas, torch.sigmoid(h[:, :3]), self._class_logits(h, raw)
+            return torch.sigmoid(h[:, :3]), logits
         rgb_in = h
         if self.config.view_dependent:
             views = sh_directions(directions) if self.view_encoding is None else self.view_encoding(directions)
             rgb_in = torch.cat([h, views], -1)
-        rgbs = torch.sigmoid(self.rgb_head(rgb_in))
-        return sigmas, rgbs, self._class_logits(h, raw)
+        return torch.sigmoid(self.rgb_head(rgb_in)), logits
+
+    def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
+        sigmas, h, raw = self._trunk(points)
+        rgbs, logits = self.heads(h, raw, directions)
+        return sigmas, rgbs, logits

@@ -7,7 +7,7 @@ Samples in cells the density grid marks empty are never evaluated (σ = 0 there)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -176,17 +176,21 @@ def render_rays_early_stop(
 ) -> RayBundleOutput:
     """:func:`render_rays` without jitter or gradients, stopping each ray once it is opaque.
 
-    The samples are marched ``segment`` at a time; after each segment a ray whose transmittance
-    T = exp(-Σ σ_i δ_i) has fallen below ``min_trans`` evaluates nothing further (its later
-    samples count as σ = 0). The composite is then the same as :func:`render_rays`' with every
+    The samples are marched ``segment`` at a time through the field's trunk (σ,
+    ``field.features``); a sample in front of which the transmittance T = exp(-Σ σ_j δ_j) has
+    already fallen below ``min_trans`` counts as σ = 0 and gets no colour or class work
+    (``field.heads`` runs on the others only), and after each segment a ray past that point
+    evaluates nothing further. The composite is then the same as :func:`render_rays`' with every
     weight after the stop dropped: at most ``min_trans`` of weight in all, so colour, class
     probabilities and depth move by at most about ``min_trans`` times their range.
 
     Args:
-        as :func:`render_rays`; ``min_trans``: the transmittance below which a ray stops (0:
-        never, the exact composite); ``segment``: samples per ray evaluated between checks.
+        as :func:`render_rays` (``field`` with ``features`` and ``heads`` as
+        :class:`~scenelabel.fields.model.FieldNetwork`'s); ``min_trans``: the transmittance below
+        which a ray stops (0: never, the exact composite); ``segment``: samples per ray evaluated
+        between checks.
     Returns:
-        RayBundleOutput.
+        RayBundleOutput; ``n_evaluated`` counts the samples the trunk evaluated.
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, None)  # [n_rays, S]
@@ -196,6 +200,7 @@ def render_rays_early_stop(
     max_optical = -math.log(min_trans) if min_trans > 0 else math.inf
     active = torch.arange(n_rays, device=origins.device)
     found_rows, found_cols, parts = [], [], []
+    n_evaluated = 0
     for start in range(0, n_cols, segment):
         if active.numel() == 0:
             break
@@ -204,11 +209,19 @@ def render_rays_early_stop(
         points = _points(origins[active], directions[active], ts, te)
         keep = (te > ts) & occupancy(points)
         rows, cols = keep.nonzero(as_tuple=True)
-        samples = _evaluate(field, points[rows, cols], directions[active][rows], with_rgb)
-        optical.index_add_(0, active[rows], (samples[0] * (te - ts)[rows, cols]).double())
-        found_rows.append(active[rows])
+        sigmas, h, raw = field.features(points[rows, cols])
+        n_evaluated += len(rows)
+        taus = (sigmas * (te - ts)[rows, cols]).double()  # σ δ of each sample
+        packed = torch.zeros(ts.shape, dtype=torch.float64, device=origins.device).index_put_((rows, cols), taus)
+        before = optical.index_select(0, active).index_select(0, rows) + (packed.cumsum(1) - packed)[rows, cols]
+        live = (before < max_optical).nonzero().squeeze(1)  # T in front of the sample still at least min_trans
+        rows, cols = rows.index_select(0, live), cols.index_select(0, live)
+        rgbs, logits = field.heads(h.index_select(0, live), raw.index_select(0, live),
+                                   directions.index_select(0, active.index_select(0, rows)) if with_rgb else None)
+        optical.index_add_(0, active.index_select(0, rows), taus.index_select(0, live))
+        found_rows.append(active.index_select(0, rows))
         found_cols.append(cols + start)
-        parts.append(samples)
+        parts.append((sigmas.index_select(0, live), rgbs, logits))
         active = active[optical[active] < max_optical]
     rows = torch.cat(found_rows) if found_rows else torch.zeros(0, dtype=torch.long, device=origins.device)
     cols = torch.cat(found_cols) if found_cols else torch.zeros_like(rows)
@@ -217,7 +230,8 @@ def render_rays_early_stop(
         samples = tuple(None if parts[0][k] is None else torch.cat([p[k] for p in parts])[order] for k in range(3))
     else:  # no sample at all: an empty evaluation keeps the shapes right
         samples = _evaluate(field, origins[:0], directions[:0], with_rgb)
-    return _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), options)
+    out = _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), options)
+    return replace(out, n_evaluated=n_evaluated)
 
 
 def render_rays_hierarchical(
