@@ -8,6 +8,7 @@ import pytest
 
 from scenelabel import FREE, OccupancyMap
 from scenelabel.data.synthetic import write_toy_scene
+from scenelabel.train.pipeline import NO_DEPTH_HINT
 
 
 def run_cli(*args, cwd=None):
@@ -219,3 +220,14 @@ def test_build_says_its_bounds_and_training_limit_before_training(tmp_path):
     assert proc.returncode == 0, proc.stderr
     plan = next(line for line in proc.stderr.splitlines() if line.startswith("bounds "))
     assert "(explicit aabb)" in plan and "training (quick): at most 5 steps or 60 s, whichever comes first" in plan
+    assert NO_DEPTH_HINT in proc.stderr  # photos alone: what to expect of the geometry, and what helps
+
+
+def test_build_with_sensor_depth_does_not_say_surfaces_come_out_soft(tmp_path):
+    from scenelabel.data.synthetic import add_phone_depth
+
+    scene = add_phone_depth(write_toy_scene(tmp_path / "scene", n_train=7, n_test=1, width=24, height=18), scale=2)
+    proc = run_cli("build", scene, "--out", tmp_path / "out", "--preset", "quick", "--steps", "5")
+    assert proc.returncode == 0, proc.stderr
+    assert any(line.startswith("bounds ") for line in proc.stderr.splitlines())
+    assert NO_DEPTH_HINT not in proc.stderr

@@ -505,6 +505,13 @@ def resolve_distortion(config: BuildConfig, thinly_seen: float | None) -> tuple[
     return resolved, {"weight": weight, "thinly_seen": thinly_seen, "why": why}
 
 
+NO_DEPTH_HINT = (
+    "no sensor depth: the geometry comes from the photos alone, so surfaces come out soft and the map misses "
+    "part of them (docs/suite.md); depth from an RGB-D camera or a phone's LiDAR makes them solid (docs/captures.md)"
+)
+"""Said before training when the training rays carry no sensor depth."""
+
+
 def _training_plan(config: BuildConfig, static: dict) -> str:
     """One line said before training: the bounds, and how long training will take at most."""
     tc = config.train
@@ -591,6 +598,8 @@ def build(
             _resume(trainer, ckpt_path, static)
         if progress and context.is_main:
             print(_training_plan(config, static), file=sys.stderr)
+            if not trainer.with_depth:
+                print(NO_DEPTH_HINT, file=sys.stderr)
         state = trainer.run(on_checkpoint=lambda t: save_checkpoint(ckpt_path, payload(t)), progress=progress)
     except TrainingInterrupted as err:
         raise TrainingInterrupted(

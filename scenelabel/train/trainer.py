@@ -312,7 +312,8 @@ class Trainer:
             raise ConfigError(f"train.tv_weight regularises a dense grid; field.encoding is {config.field.encoding!r}")
         # with sensor depth the surfaces sit where they were measured, so the interior behind them
         # is filled at least at train.depth_solid_weight (without depth: train.solid_weight alone)
-        with_depth = self.rays.depth is not None and tc.depth_weight > 0
+        # the training rays carry sensor depth the depth terms train on
+        self.with_depth = with_depth = self.rays.depth is not None and tc.depth_weight > 0
         self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
         # "auto" is resolved by the build (pipeline.resolve_distortion); a trainer made without it: off
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
