@@ -155,6 +155,23 @@ def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_thresho
     torch.testing.assert_close(stopped.depth, full.depth, rtol=0, atol=2 * min_trans * span)
 
 
+def test_early_stop_finite_at_extreme_densities():
+    """From no slab (σ = 0) to one opaque within a millionth of a step (σ = 1e8): finite answers,
+    opacity in [0, 1], probabilities summing to one, and within the threshold of the full composite."""
+    o, d, t_min, t_max = rays()
+    for sigma in (0.0, 1e-8, 1e3, 1e8):
+        field = SlabField(sigma=sigma)
+        full = render_rays(field, every_cell, o, d, t_min, t_max, Marching(0.02, 120))
+        for min_trans in (0.0, 1e-4):
+            out = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, Marching(0.02, 120), min_trans=min_trans, segment=8)
+            for name in ("rgb", "depth", "opacity", "class_log_probs"):
+                assert torch.isfinite(getattr(out, name)).all(), (sigma, min_trans, name)
+            assert ((out.opacity >= 0) & (out.opacity <= 1 + 1e-6)).all()
+            torch.testing.assert_close(out.class_log_probs.exp().sum(-1), torch.ones(len(o)), rtol=0, atol=1e-5)
+            torch.testing.assert_close(out.opacity, full.opacity, rtol=0, atol=max(min_trans, 1e-6))
+            torch.testing.assert_close(out.rgb, full.rgb, rtol=0, atol=max(2 * min_trans, 1e-5))
+
+
 def test_early_stop_without_colour_and_with_no_samples():
     field = SlabField(sigma=50.0)
     o, d, t_min, t_max = rays(5)
