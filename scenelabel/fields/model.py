@@ -148,11 +148,15 @@ class FieldNetwork(nn.Module):
         ids = {id(p) for p in self.encoding.parameters()}
         return [p for p in self.parameters() if id(p) not in ids]
 
-    def _trunk(self, points: torch.Tensor, features: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """points [n, 3] -> σ [n], features h [n, F], raw densities [n, 1] (σ's) or [n, C] (σ_j's).
+    def features(
+        self, points: torch.Tensor, heads_input: bool = True
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """points [n, 3] -> σ [n], features h [n, F], raw densities [n, 1] (σ's) or [n, C] (σ_j's):
+        the trunk, whose h and raw :meth:`heads` turns into colour and class scores (so that a
+        renderer can run the heads on only the points whose weight turns out to matter).
 
         h is the trunk's hidden layer, or with ``head="direct"`` the grid's colour and logit
-        channels. With ``features=False`` a network's last layer computes only the density rows and
+        channels. With ``heads_input=False`` a network's last layer computes only the density rows and
         h is [n, 0] (a grid reads all its channels either way). Points the warp maps
         outside [-1, 1]^3 (only a forward warp has such points inside the scene box: behind or
         beside its reference frustum) have σ = 0.
@@ -161,7 +165,7 @@ class FieldNetwork(nn.Module):
         if self.direct:
             out = self.encoding(unit)
         else:
-            out = self.trunk(self.encoding(unit), None if features else self._n_density)
+            out = self.trunk(self.encoding(unit), None if heads_input else self._n_density)
         raw, h = out[:, : self._n_density], out[:, self._n_density :]
         if not self.direct:
             h = F.relu(h)
@@ -181,18 +185,12 @@ class FieldNetwork(nn.Module):
 
     def density(self, points: torch.Tensor) -> torch.Tensor:
         """points [n, 3] -> σ [n] (no colour or class work)."""
-        return self._trunk(points, features=False)[0]
+        return self.features(points, heads_input=False)[0]
 
     def semantics(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """points [n, 3] -> σ [n], class_logits [n, C] (no colour work)."""
-        sigmas, h, raw = self._trunk(points)
+        sigmas, h, raw = self.features(points)
         return sigmas, self._class_logits(h, raw)
-
-    def features(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """points [n, 3] -> σ [n] and the trunk's outputs h [n, F], raw [n, 1 or C] that :meth:`heads`
-        turns into colour and class scores: so that a renderer can run the heads on only the
-        points whose weight turns out to matter."""
-        return self._trunk(points)
 
     def heads(
         self, h: torch.Tensor, raw: torch.Tensor, directions: torch.Tensor | None
@@ -212,6 +210,6 @@ class FieldNetwork(nn.Module):
 
     def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
-        sigmas, h, raw = self._trunk(points)
+        sigmas, h, raw = self.features(points)
         rgbs, logits = self.heads(h, raw, directions)
         return sigmas, rgbs, logits
