@@ -527,8 +527,13 @@ def test_carved_cells_stay_empty_through_refreshes_and_rebuilds():
     grid.update(dense, generator=torch.Generator().manual_seed(0))
     assert not grid.bits[:2].any() and grid.bits[2:].all()
     grid.update(dense, all_cells=False, generator=torch.Generator().manual_seed(1))
-    grid.rebuild(dense, dilate=1)
+    seen = []
+    grid.rebuild(lambda p: seen.append(p) or dense(p), dilate=1)
     assert not grid.bits[:2].any() and grid.bits[2:].all()
+    # the rebuild evaluates the uncarved cells alone (27 points each) and leaves the carved ones at 0
+    points = torch.cat(seen)
+    assert len(points) == 4 * 36 * 27 and bool((grid.warp(points)[:, 0] > -1 + 2 * 2 / 6).all())
+    assert not grid.density[:2].any()
     assert "carved" not in grid.state_dict()  # a saved grid's bits already leave the carved cells out
     grid.release_carve_border()  # the carve's border (the cells beside uncarved ones) back to the field
     grid.update(dense, generator=torch.Generator().manual_seed(2))

@@ -450,19 +450,19 @@ class DensityGrid(nn.Module):
         (a decay of 0.95 per refresh); this grid follows the field as it is. The lattice sees
         any surface thicker than a sub-cell, and the dilation keeps the cells beside those it
         sees (a surface's faint edge), so what the lattice misses lies next to what it finds.
-        Carved cells stay empty.
+        Carved cells stay empty (density 0) and are not evaluated.
         """
         r, s = self.resolution, samples_per_axis
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s
         offsets = torch.stack(torch.meshgrid(centres, centres, centres, indexing="ij"), -1).reshape(1, -1, 3)  # [1, s³, 3]
-        cells = torch.arange(r**3)
-        idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()  # [r³, 3]
+        cells = (~self.carved).flatten().nonzero().squeeze(1).cpu()  # carved cells stay empty: not evaluated
+        idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()  # [n, 3]
         per_chunk = max(chunk // s**3, 1)
-        density = torch.empty(r**3, device=self.density.device)
-        for i in range(0, r**3, per_chunk):
+        density = torch.zeros(r**3, device=self.density.device)
+        for i in range(0, len(cells), per_chunk):
             unit = ((idx[i : i + per_chunk, None, :] + offsets) / r * 2.0 - 1.0).reshape(-1, 3)
             sigmas = density_fn(self.warp.inverse(unit.to(self.cube.device))).float()
-            density[i : i + per_chunk] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
+            density[cells[i : i + per_chunk].to(density.device)] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
         self.density = density.reshape(r, r, r)
         bits = self.density > self.sigma_threshold
         if dilate > 0:
