@@ -45,6 +45,10 @@ class DataConfig:
     # consecutive frames, blurred ones dropped), and at most this many frames in all
     video_frames_per_second: float = 3.0
     video_max_frames: int = 150
+    # without sensor depth: the floor, wall and ceiling pixels of the training views get the depth of
+    # the room's layout, found where their masks meet (scenelabel.data.layout_depth), and the build
+    # trains on it as on sensor depth. Only where the classes name a floor and walls
+    layout_depth: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.downscale, bool) or not isinstance(self.downscale, int) or self.downscale < 1:
@@ -57,6 +61,8 @@ class DataConfig:
         n = self.video_max_frames
         if isinstance(n, bool) or not isinstance(n, int) or n < 2:
             raise ConfigError(f"data.video_max_frames must be an integer >= 2, got {n!r}")
+        if not isinstance(self.layout_depth, bool):
+            raise ConfigError(f"data.layout_depth must be true or false, got {self.layout_depth!r}")
 
 
 @dataclass

@@ -35,6 +35,7 @@ PROBE_RAYS = 20_000  # held-out pixel rays probed per room
 TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F-score's recall
 VARIANTS: dict[str, dict] = {
     "-": {},
+    "no-layout": {"data": {"layout_depth": False}},
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
@@ -68,6 +69,8 @@ VARIANTS: dict[str, dict] = {
 }
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
+    "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
+    "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)

@@ -6,9 +6,7 @@ Orchestration on top of io, train, semantic_field and maps. Writes into the outp
   cameras (what the maps' unknown rule needs)
 - ``config.json``: the resolved config (human-readable copy)
 - ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
-- ``renders/<view>.png``: captioned panels (ground truth, rgb, labels, smoothed labels, true labels,
-  depth, label errors), a class legend and the view's metrics, for held-out views
-  (:mod:`scenelabel.viz.pictures`)
+- ``renders/<view>.png``: captioned panels of held-out views (:mod:`scenelabel.viz.pictures`)
 - ``map.zarr``: the semantic occupancy map
 """
 
@@ -41,6 +39,7 @@ from scenelabel.config import (
     render_background,
 )
 from scenelabel.data.io import load_scene
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
 from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
@@ -436,7 +435,7 @@ def prepare_training(
 
     train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
     class_map = _class_map(scene, train_idx)
-    points, seen_by, thinly_seen = None, "sensor depth", None
+    points, seen_by, thinly_seen = None, scene.info.get(DEPTH_SOURCE_KEY, "sensor depth").split(":")[0], None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
         points = sensor_depth_points(scene, train_idx)
         if points is None:  # no training view has sensor depth
@@ -577,6 +576,10 @@ def build(
         scene = scene.scaled(config.data.scale)
     elif scene.sensor_depths is not None:
         scene = scaled_to_sensor_depth(scene, progress)
+    if scene.sensor_depths is None and config.data.layout_depth:
+        scene, layout = with_layout_depth(scene, choose_views(scene, config.train.holdout)[0])
+        if progress and layout is not None:
+            print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}", file=sys.stderr)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)

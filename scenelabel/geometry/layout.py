@@ -1,0 +1,352 @@
+"""A room's layout from its masks and poses: the floor and ceiling planes and Manhattan walls, found
+where the masks' floor, wall and ceiling meet; their depth for the pixels those classes cover.
+
+Without sensor depth a field learns a room's large plain surfaces from colour alone, and they come
+out soft (docs/suite.md). The masks already say where the floor meets the walls and the walls meet
+the ceiling in every view; with known poses those lines fix the planes to a few millimetres. The
+assumption is the Manhattan world's (planar floor and ceiling normal to "up", walls along two
+perpendicular horizontal directions), which Manhattan-SDF (Guo et al., CVPR 2022) also takes from
+2D semantic masks of floor and wall.
+
+Conventions (docs/conventions.md): cameras are :class:`scenelabel.Cameras` (OpenCV axes, world
+frame); a label image is [H, W] external class ids; depth is the distance along the unit ray.
+
+The steps (numpy only):
+
+1. :func:`boundary_rays`: the rays through the pixel edges between a ``lower`` pixel and an
+   ``upper`` one (floor below wall, wall below ceiling; left-right pairs either way).
+2. :func:`plane_offset`: the height ``h`` along ``up`` at which those rays, cut by the plane
+   ``x . up = h``, land on the fewest distinct places: the walls' base (or top) lines seen from
+   every camera agree only at the true height. The spread is counted in bins that grow with the
+   distance from the cameras' mean height (so that heights near the cameras, where every ray's
+   cut collapses onto its camera, do not win).
+3. :func:`room_layout`: ``up`` from the cameras' mean up direction, refined with step 2's
+   agreement over tilts of a few degrees; the floor and ceiling heights; the walls' direction
+   (the horizontal rotation whose two axes bunch the boundary points most) and the walls (the
+   peaks of the points' coordinates along each axis, with the extent their points cover).
+4. :func:`depth_from_layout`: per pixel labelled floor, ceiling or wall, the distance along its ray
+   to that plane (for a wall: the nearest wall it meets within a wall's extent, between floor and
+   ceiling); NaN elsewhere.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.rays import rays_from_cameras
+
+__all__ = [
+    "LAYOUT_CLASSES",
+    "BIN",
+    "MAX_BOUNDARY_RAYS",
+    "MIN_WALL_SUPPORT",
+    "SEARCH_SPAN",
+    "Wall",
+    "RoomLayout",
+    "layout_class_ids",
+    "boundary_rays",
+    "plane_offset",
+    "room_layout",
+    "depth_from_layout",
+]
+
+LAYOUT_CLASSES = ("floor", "wall", "ceiling")
+"""The classes a layout is made of, matched by name: a class named ``floor``, or starting with it
+followed by a non-letter (``floor-wood``, ``floor_other``), is the floor; likewise wall and ceiling."""
+
+BIN = 0.02
+"""Bin side (world units, at 1.5 units from the cameras' mean height) in which :func:`plane_offset`
+counts where the boundary rays land; finer bins at the refining pass."""
+
+MAX_BOUNDARY_RAYS = 20_000
+"""At most this many boundary rays (an even subsample) enter each search."""
+
+MIN_WALL_SUPPORT = 0.02
+"""A wall is a peak holding at least this fraction of the boundary points."""
+
+SEARCH_SPAN = 4.0
+"""World units from the cameras within which :func:`plane_offset` looks for a floor or ceiling."""
+
+_TILTS = ((4.0, 1.0), (1.0, 0.25), (0.25, 0.05))  # (half range, step) in degrees of the two refining passes on up
+_WALL_BAND = 0.03  # world units: boundary points this close to a wall's peak belong to it
+_EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
+
+
+@dataclass(frozen=True)
+class Wall:
+    """A wall: the plane ``coordinate[axis] = offset`` in the layout's horizontal basis, covering
+    ``extent`` (lo, hi) along the other axis; ``support`` boundary points found it."""
+
+    axis: int
+    offset: float
+    extent: tuple[float, float]
+    support: int
+
+
+@dataclass(frozen=True)
+class RoomLayout:
+    """A room's planes, world frame.
+
+    up: [3] unit vector; heights are ``point . up``.
+    floor, ceiling: heights of the floor and ceiling planes (None: not found).
+    basis: [2, 3] the walls' two horizontal unit directions (rows; each normal to ``up``).
+    walls: the walls along those directions.
+    """
+
+    up: np.ndarray
+    floor: float | None
+    ceiling: float | None
+    basis: np.ndarray
+    walls: tuple[Wall, ...]
+
+
+def layout_class_ids(classes: Mapping[int, str]) -> dict[str, int]:
+    """{"floor": id, "wall": id, "ceiling": id} for the classes of :data:`LAYOUT_CLASSES` present in
+    ``classes`` (id -> name); the first id in ascending order where several names match."""
+    found: dict[str, int] = {}
+    for cid in sorted(classes):
+        name = str(classes[cid]).strip().lower()
+        for kind in LAYOUT_CLASSES:
+            if kind not in found and re.fullmatch(rf"{kind}([^a-z].*)?", name):
+                found[kind] = int(cid)
+    return found
+
+
+def boundary_rays(
+    cameras: Cameras, labels: Sequence[np.ndarray | None], lower: int, upper: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """World rays through the pixel edges where a ``lower`` pixel meets an ``upper`` one.
+
+    Vertical neighbours count with ``upper`` above (smaller row): the edge between rows r - 1 and r
+    at v = r, u = c + 0.5. Horizontal neighbours count either way round: the edge at u = c + 1,
+    v = r + 0.5 (pixel centres at + 0.5, docs/conventions.md).
+
+    Args:
+        cameras: n cameras.
+        labels: n label images ([H, W] class ids) or None (a view without labels: no rays).
+        lower, upper: the class ids.
+    Returns:
+        origins [m, 3], directions [m, 3] (unit), float64.
+    """
+    if len(labels) != len(cameras):
+        raise InputError(f"{len(labels)} label images for {len(cameras)} cameras", field="labels")
+    origins, directions = [np.zeros((0, 3))], [np.zeros((0, 3))]
+    for i, label in enumerate(labels):
+        if label is None:
+            continue
+        label = np.asarray(label)
+        r, c = np.nonzero((label[:-1] == upper) & (label[1:] == lower))
+        vertical = np.column_stack([c + 0.5, r + 1.0])
+        a, b = label[:, :-1], label[:, 1:]
+        r, c = np.nonzero(((a == upper) & (b == lower)) | ((a == lower) & (b == upper)))
+        pixels = np.concatenate([vertical, np.column_stack([c + 1.0, r + 0.5])])
+        if len(pixels):
+            o, d = rays_from_cameras(cameras, i, pixels)
+            origins.append(o)
+            directions.append(d)
+    return np.concatenate(origins), np.concatenate(directions)
+
+
+def _spread(points: np.ndarray, bin_size: float) -> float:
+    """Σ count² / n² of ``points`` [n, k] (k <= 2) binned in squares of ``bin_size``: 1 when every
+    point shares one bin, 1 / n when none does."""
+    if len(points) == 0:
+        return 0.0
+    cells = np.floor(points / bin_size).astype(np.int64)
+    key = cells[:, 0] if cells.shape[1] == 1 else cells[:, 0] * (1 << 32) + cells[:, 1]
+    key = np.sort(key)
+    edges = np.flatnonzero(np.diff(key)) + 1
+    counts = np.diff(np.concatenate([[0], edges, [len(key)]])).astype(np.float64)
+    return float((counts**2).sum()) / len(points) ** 2
+
+
+def _cut_agreement(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float, bin_size: float) -> float:
+    """How well the rays, cut by the plane ``x . up = height``, agree (:func:`_spread` of the cuts
+    in the plane, bins scaled by the distance from the cameras' mean height / 1.5)."""
+    o_h, d_h = origins @ up, directions @ up
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (height - o_h) / d_h
+    ahead = np.isfinite(t) & (t > 0)
+    points = origins[ahead] + directions[ahead] * t[ahead, None]
+    scale = max(abs(float(o_h.mean()) - height), 1e-6) / 1.5
+    return _spread(points, bin_size * scale)
+
+
+def plane_offset(
+    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool, near: float | None = None
+) -> tuple[float, float]:
+    """The height (along unit ``up``) of the plane on which the boundary rays agree: searched at
+    5 cm from 0.3 to :data:`SEARCH_SPAN` units below the lowest ray origin (``below``) or above the
+    highest, or within 5 cm of ``near`` when given; then at 1 mm around the best.
+
+    Args:
+        origins, directions: [m, 3] boundary rays (:func:`boundary_rays`).
+        up: [3] unit vector.
+        below: the plane lies below the cameras (a floor) or above them (a ceiling).
+        near: a height to search around (the best of a slightly different ``up``).
+    Returns:
+        (height, agreement): the agreement is :func:`_spread`'s, in (0, 1].
+    """
+    if len(origins) == 0:
+        raise InputError("no boundary rays to find a plane from", field="origins")
+    if near is None:
+        heights = origins @ up
+        if below:
+            coarse = np.arange(heights.min() - SEARCH_SPAN, heights.min() - 0.3, 0.05)
+        else:
+            coarse = np.arange(heights.max() + 0.3, heights.max() + SEARCH_SPAN, 0.05)
+        scores = [_cut_agreement(origins, directions, up, h, BIN) for h in coarse]
+        near = float(coarse[int(np.argmax(scores))])
+    fine = np.arange(near - 0.05, near + 0.05 + 1e-9, 0.002)
+    scores = [_cut_agreement(origins, directions, up, h, BIN / 2) for h in fine]
+    k = int(np.argmax(scores))
+    return float(fine[k]), float(scores[k])
+
+
+def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
+    """``up`` turned by ``a`` and ``b`` degrees about two axes normal to it."""
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    v = up + np.tan(np.radians(a)) * e1 + np.tan(np.radians(b)) * e2
+    return v / np.linalg.norm(v)
+
+
+def _refined_up(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool) -> tuple[np.ndarray, float]:
+    """``up`` tilted to where the boundary rays agree best at their best height, one tilt axis at a
+    time (:data:`_TILTS`), and that height."""
+    height = plane_offset(origins, directions, up, below)[0]
+    a = b = 0.0
+    for half, step in _TILTS:
+        for axis in (0, 1, 0, 1):
+            steps = np.arange(-half, half + 1e-9, step)
+            tilts = [(a + x, b) if axis == 0 else (a, b + x) for x in steps]
+            found = [plane_offset(origins, directions, _tilted(up, *t), below, height) for t in tilts]
+            k = int(np.argmax([f[1] for f in found]))
+            (a, b), height = tilts[k], found[k][0]
+    return _tilted(up, a, b), height
+
+
+def _subsample(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    if len(origins) <= MAX_BOUNDARY_RAYS:
+        return origins, directions
+    keep = np.linspace(0, len(origins) - 1, MAX_BOUNDARY_RAYS).astype(np.int64)
+    return origins[keep], directions[keep]
+
+
+def _cuts(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (height - origins @ up) / (directions @ up)
+    ahead = np.isfinite(t) & (t > 0)
+    return origins[ahead] + directions[ahead] * t[ahead, None]
+
+
+def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
+    """The Manhattan rotation (angle in [0, 90) degrees, 0.25 degree steps) and the walls of
+    boundary points ``points`` [n, 2] given in any horizontal basis."""
+    angles = np.radians(np.arange(0.0, 90.0, 0.25))
+
+    def rotation(t: float) -> np.ndarray:
+        return np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+
+    scores = [_spread((points @ rotation(t).T)[:, :1], BIN) + _spread((points @ rotation(t).T)[:, 1:], BIN) for t in angles]
+    rot = rotation(float(angles[int(np.argmax(scores))]))
+    q = points @ rot.T
+    walls = []
+    for axis in (0, 1):
+        v = q[:, axis]
+        bins, counts = np.unique(np.floor(v / (BIN / 2)).astype(np.int64), return_counts=True)
+        taken: list[float] = []
+        for j in np.argsort(-counts, kind="stable"):
+            if counts[j] < MIN_WALL_SUPPORT * len(v):
+                break
+            centre = (bins[j] + 0.5) * BIN / 2
+            if any(abs(centre - t) <= 10 * BIN / 2 for t in taken):  # a peak's own shoulder
+                continue
+            taken.append(centre)
+            near = np.abs(v - centre) < _WALL_BAND
+            along = q[near, 1 - axis]
+            extent = (float(np.percentile(along, 1)) - _EDGE_SLACK, float(np.percentile(along, 99)) + _EDGE_SLACK)
+            walls.append(Wall(axis, float(np.median(v[near])), extent, int(near.sum())))
+    return rot, tuple(walls)
+
+
+def room_layout(cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids: Mapping[str, int]) -> RoomLayout | None:
+    """The layout of a room from its views' masks (see the module docstring).
+
+    Args:
+        cameras: the views' cameras.
+        labels: their label images ([H, W] class ids; None: unlabelled).
+        class_ids: :func:`layout_class_ids` of the scene's classes.
+    Returns:
+        the layout, or None where the masks show no floor-wall boundary (no floor, wall or none
+        adjacent). The ceiling is None without wall-ceiling boundaries.
+    """
+    if "floor" not in class_ids or "wall" not in class_ids:
+        return None
+    floor_rays = _subsample(*boundary_rays(cameras, labels, class_ids["floor"], class_ids["wall"]))
+    if len(floor_rays[0]) == 0:
+        return None
+    up = -cameras.c2w[:, :3, 1].mean(axis=0)  # the cameras' mean up (OpenCV: y points down)
+    up, floor = _refined_up(*floor_rays, up / np.linalg.norm(up), below=True)
+    points = [_cuts(*floor_rays, up, floor)]
+    ceiling = None
+    if "ceiling" in class_ids:
+        ceiling_rays = _subsample(*boundary_rays(cameras, labels, class_ids["wall"], class_ids["ceiling"]))
+        if len(ceiling_rays[0]):
+            ceiling = plane_offset(*ceiling_rays, up, below=False)[0]
+            points.append(_cuts(*ceiling_rays, up, ceiling))
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    plane = np.stack([e1, np.cross(up, e1)])  # [2, 3] a horizontal basis
+    rot, walls = _walls(np.concatenate(points) @ plane.T)
+    return RoomLayout(up=up, floor=floor, ceiling=ceiling, basis=rot @ plane, walls=walls)
+
+
+def depth_from_layout(
+    layout: RoomLayout, cameras: Cameras, index: int, label: np.ndarray, class_ids: Mapping[str, int]
+) -> np.ndarray:
+    """[H, W] distance along each pixel's unit ray to the layout plane of its class: the floor or
+    ceiling plane for pixels labelled so, the nearest wall it meets within a wall's extent (and
+    between floor and ceiling) for wall pixels; NaN for other pixels and where no plane is met
+    in front of the camera.
+
+    Args:
+        layout: the room's layout (:func:`room_layout`).
+        cameras, index: the view's camera.
+        label: [H, W] its class ids.
+        class_ids: :func:`layout_class_ids`.
+    """
+    label = np.asarray(label)
+    origins, directions = rays_from_cameras(cameras, index)
+    flat = label.reshape(-1)
+    depth = np.full(len(flat), np.nan)
+    o_h, d_h = origins @ layout.up, directions @ layout.up
+    for kind, height in (("floor", layout.floor), ("ceiling", layout.ceiling)):
+        if kind in class_ids and height is not None:
+            m = flat == class_ids[kind]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (height - o_h[m]) / d_h[m]
+            depth[m] = np.where(np.isfinite(t) & (t > 0), t, np.nan)
+    if "wall" in class_ids and layout.walls:
+        m = np.nonzero(flat == class_ids["wall"])[0]
+        o2, d2 = origins[m] @ layout.basis.T, directions[m] @ layout.basis.T
+        low = -np.inf if layout.floor is None else layout.floor - _WALL_BAND
+        high = np.inf if layout.ceiling is None else layout.ceiling + _WALL_BAND
+        nearest = np.full(len(m), np.inf)
+        for wall in layout.walls:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (wall.offset - o2[:, wall.axis]) / d2[:, wall.axis]
+            along = o2[:, 1 - wall.axis] + d2[:, 1 - wall.axis] * t
+            height = o_h[m] + d_h[m] * t
+            hit = (np.isfinite(t) & (t > 0) & (along >= wall.extent[0]) & (along <= wall.extent[1])
+                   & (height >= low) & (height <= high))
+            nearest = np.where(hit & (t < nearest), t, nearest)
+        depth[m] = np.where(np.isfinite(nearest), nearest, np.nan)
+    return depth.reshape(label.shape)
