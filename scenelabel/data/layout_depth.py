@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 
 from scenelabel.data.scene import Scene
-from scenelabel.geometry.layout import RoomLayout, depth_from_layout, layout_class_ids, room_layout
+from scenelabel.geometry.layout import MIN_ON_WALLS, RoomLayout, depth_from_layout, layout_class_ids, room_layout
 
 __all__ = ["DEPTH_SOURCE_KEY", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
 
@@ -36,14 +36,15 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     none) and ``info[DEPTH_SOURCE_KEY]`` saying so.
 
     Unchanged (layout None) when the scene has sensor depth, its classes name no floor and wall,
-    the masks show no floor-wall boundary, or the layout's depth covers less than
-    MIN_LAYOUT_SHARE of the training pixels.
+    the masks show no floor-wall boundary, the layout puts less than
+    :data:`~scenelabel.geometry.layout.MIN_ON_WALLS` of the boundaries on its walls (the room is
+    not what it says), or its depth covers less than MIN_LAYOUT_SHARE of the training pixels.
     """
     ids = layout_class_ids(scene.classes)
     if scene.sensor_depths is not None or "floor" not in ids or "wall" not in ids:
         return scene, None
     layout = room_layout(scene.cameras[train], [scene.labels[i] for i in train], ids)
-    if layout is None:
+    if layout is None or layout.on_walls < MIN_ON_WALLS:
         return scene, None
     depths: list[np.ndarray | None] = [None] * len(scene)
     covered = total = 0

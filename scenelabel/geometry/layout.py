@@ -31,6 +31,7 @@ The steps (numpy only):
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -45,7 +46,10 @@ __all__ = [
     "LAYOUT_CLASSES",
     "BIN",
     "MAX_BOUNDARY_RAYS",
+    "MAX_SEARCH_RAYS",
+    "MIN_ON_WALLS",
     "MIN_WALL_SUPPORT",
+    "WALL_BAND",
     "SEARCH_SPAN",
     "Wall",
     "RoomLayout",
@@ -67,14 +71,26 @@ counts where the boundary rays land; finer bins at the refining pass."""
 MAX_BOUNDARY_RAYS = 20_000
 """At most this many boundary rays (an even subsample) enter each search."""
 
+MAX_SEARCH_RAYS = 5_000
+"""At most this many of them (an even subsample) enter the search for up."""
+
+MIN_ON_WALLS = 0.55
+"""A layout with less than this share of its boundary cuts on its walls (:attr:`RoomLayout.on_walls`)
+is not what the room is: :func:`room_layout` searches again from another start, and
+:mod:`scenelabel.data.layout_depth` does not use it."""
+
 MIN_WALL_SUPPORT = 0.02
 """A wall is a peak holding at least this fraction of the boundary points."""
 
 SEARCH_SPAN = 4.0
 """World units from the cameras within which :func:`plane_offset` looks for a floor or ceiling."""
 
-_TILTS = ((4.0, 1.0), (1.0, 0.25), (0.25, 0.05))  # (half range, step) in degrees of the two refining passes on up
-_WALL_BAND = 0.03  # world units: boundary points this close to a wall's peak belong to it
+# (half range, step) in degrees of the passes refining up: in the plane from the cameras' mean up,
+# then along the walls
+_TILTS_PLANE = ((4.0, 1.0), (1.0, 0.25))
+_TILTS_WALLS = ((1.0, 0.25), (0.25, 0.05))
+WALL_BAND = 0.03
+"""World units: boundary cuts this close to a wall's line belong to it."""
 _EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
 
 
@@ -97,6 +113,8 @@ class RoomLayout:
     floor, ceiling: heights of the floor and ceiling planes (None: not found).
     basis: [2, 3] the walls' two horizontal unit directions (rows; each normal to ``up``).
     walls: the walls along those directions.
+    on_walls: the share of the boundary rays' cuts (floor and ceiling) that lie on a wall, within
+        :data:`WALL_BAND` of it and inside its extent: near 1 where the room is what the layout says.
     """
 
     up: np.ndarray
@@ -104,6 +122,7 @@ class RoomLayout:
     ceiling: float | None
     basis: np.ndarray
     walls: tuple[Wall, ...]
+    on_walls: float = 1.0
 
 
 def layout_class_ids(classes: Mapping[int, str]) -> dict[str, int]:
@@ -166,32 +185,51 @@ def _spread(points: np.ndarray, bin_size: float) -> float:
     return float((counts**2).sum()) / len(points) ** 2
 
 
-def _cut_agreement(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float, bin_size: float) -> float:
-    """How well the rays, cut by the plane ``x . up = height``, agree (:func:`_spread` of the cuts
-    in the plane, bins scaled by the distance from the cameras' mean height / 1.5)."""
+def _horizontal(up: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """[2, 3]: ``direction`` made normal to ``up`` (unit), and ``up x`` it."""
+    b1 = direction - (direction @ up) * up
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(up, b1)])
+
+
+def _cut_agreement(
+    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float, bin_size: float,
+    walls: np.ndarray | None = None,
+) -> float:
+    """How well the rays, cut by the plane ``x . up = height``, agree: :func:`_spread` of the cuts
+    in the plane (2D bins), or, given the walls' direction ``walls`` [3], the sum of the spreads of
+    their two coordinates along the walls (1D bins: a wall's points share one bin at the true
+    height and up, which counts far more points per bin than 2D bins). Bins scale with the
+    distance from the cameras' mean height / 1.5."""
     o_h, d_h = origins @ up, directions @ up
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (height - o_h) / d_h
     ahead = np.isfinite(t) & (t > 0)
     points = origins[ahead] + directions[ahead] * t[ahead, None]
-    scale = max(abs(float(o_h.mean()) - height), 1e-6) / 1.5
-    return _spread(points, bin_size * scale)
+    size = bin_size * max(abs(float(o_h.mean()) - height), 1e-6) / 1.5
+    if walls is None:
+        return _spread(points, size)
+    q = points @ _horizontal(up, walls).T
+    return _spread(q[:, :1], size) + _spread(q[:, 1:], size)
 
 
 def plane_offset(
-    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool, near: float | None = None
+    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool,
+    near: float | None = None, walls: np.ndarray | None = None,
 ) -> tuple[float, float]:
-    """The height (along unit ``up``) of the plane on which the boundary rays agree: searched at
-    5 cm from 0.3 to :data:`SEARCH_SPAN` units below the lowest ray origin (``below``) or above the
-    highest, or within 5 cm of ``near`` when given; then at 1 mm around the best.
+    """The height (along unit ``up``) of the plane on which the boundary rays agree
+    (:func:`_cut_agreement`): searched at 5 cm from 0.3 to :data:`SEARCH_SPAN` units below the
+    lowest ray origin (``below``) or above the highest, or within 5 cm of ``near`` when given; then
+    at 2 mm around the best.
 
     Args:
         origins, directions: [m, 3] boundary rays (:func:`boundary_rays`).
         up: [3] unit vector.
         below: the plane lies below the cameras (a floor) or above them (a ceiling).
         near: a height to search around (the best of a slightly different ``up``).
+        walls: [3] a direction along the walls (their agreement is then counted along the walls).
     Returns:
-        (height, agreement): the agreement is :func:`_spread`'s, in (0, 1].
+        (height, agreement): the agreement is :func:`_cut_agreement`'s, in (0, 2].
     """
     if len(origins) == 0:
         raise InputError("no boundary rays to find a plane from", field="origins")
@@ -201,10 +239,10 @@ def plane_offset(
             coarse = np.arange(heights.min() - SEARCH_SPAN, heights.min() - 0.3, 0.05)
         else:
             coarse = np.arange(heights.max() + 0.3, heights.max() + SEARCH_SPAN, 0.05)
-        scores = [_cut_agreement(origins, directions, up, h, BIN) for h in coarse]
+        scores = [_cut_agreement(origins, directions, up, h, BIN, walls) for h in coarse]
         near = float(coarse[int(np.argmax(scores))])
     fine = np.arange(near - 0.05, near + 0.05 + 1e-9, 0.002)
-    scores = [_cut_agreement(origins, directions, up, h, BIN / 2) for h in fine]
+    scores = [_cut_agreement(origins, directions, up, h, BIN / 2, walls) for h in fine]
     k = int(np.argmax(scores))
     return float(fine[k]), float(scores[k])
 
@@ -218,25 +256,47 @@ def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _refined_up(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool) -> tuple[np.ndarray, float]:
-    """``up`` tilted to where the boundary rays agree best at their best height, one tilt axis at a
-    time (:data:`_TILTS`), and that height."""
-    height = plane_offset(origins, directions, up, below)[0]
-    a = b = 0.0
-    for half, step in _TILTS:
-        for axis in (0, 1, 0, 1):
-            steps = np.arange(-half, half + 1e-9, step)
-            tilts = [(a + x, b) if axis == 0 else (a, b + x) for x in steps]
-            found = [plane_offset(origins, directions, _tilted(up, *t), below, height) for t in tilts]
+def _refined_up(
+    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, walls: np.ndarray | None
+) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """``up`` tilted to where the floor's boundary rays agree best at their best height: one tilt
+    at a time, in passes of (half range, step) degrees, the first pass searching every height and
+    the others near the best so far. Without ``walls``, agreement in the plane (:data:`_TILTS_PLANE`);
+    with ``walls`` (a direction along them), agreement along the walls, the walls' direction turned
+    about up as a third angle (:data:`_TILTS_WALLS`). Returns (up, height, walls)."""
+    angles = np.zeros(3)  # tilts about two axes normal to up; the walls' turn about up
+
+    def placed(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        tilted = _tilted(up, angles[0], angles[1])
+        return tilted, None if walls is None else _turned(tilted, walls, angles[2])
+
+    height = None
+    for half, step in _TILTS_PLANE if walls is None else _TILTS_WALLS:
+        for axis in (0, 1) * 2 if walls is None else (0, 1, 2) * 2:
+            candidates = []
+            for x in np.arange(-half, half + 1e-9, step):
+                c = angles.copy()
+                c[axis] += x
+                candidates.append(c)
+            found = [plane_offset(origins, directions, *placed(c)[:1], True, height, placed(c)[1]) for c in candidates]
             k = int(np.argmax([f[1] for f in found]))
-            (a, b), height = tilts[k], found[k][0]
-    return _tilted(up, a, b), height
+            angles = candidates[k]
+        height = found[k][0]
+    return (*placed(angles)[:1], height, placed(angles)[1])
 
 
-def _subsample(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    if len(origins) <= MAX_BOUNDARY_RAYS:
+def _turned(up: np.ndarray, direction: np.ndarray, degrees: float) -> np.ndarray:
+    """``direction`` made normal to ``up`` and turned about it by ``degrees``."""
+    b = _horizontal(up, direction)
+    t = np.radians(degrees)
+    return np.cos(t) * b[0] + np.sin(t) * b[1]
+
+
+def _subsample(origins: np.ndarray, directions: np.ndarray, limit: int = MAX_BOUNDARY_RAYS) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``limit`` of the rays, evenly spread over them."""
+    if len(origins) <= limit:
         return origins, directions
-    keep = np.linspace(0, len(origins) - 1, MAX_BOUNDARY_RAYS).astype(np.int64)
+    keep = np.linspace(0, len(origins) - 1, limit).astype(np.int64)
     return origins[keep], directions[keep]
 
 
@@ -270,7 +330,7 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
             if any(abs(centre - t) <= 10 * BIN / 2 for t in taken):  # a peak's own shoulder
                 continue
             taken.append(centre)
-            near = np.abs(v - centre) < _WALL_BAND
+            near = np.abs(v - centre) < WALL_BAND
             along = q[near, 1 - axis]
             extent = (float(np.percentile(along, 1)) - _EDGE_SLACK, float(np.percentile(along, 99)) + _EDGE_SLACK)
             walls.append(Wall(axis, float(np.median(v[near])), extent, int(near.sum())))
@@ -279,6 +339,11 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
 
 def room_layout(cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids: Mapping[str, int]) -> RoomLayout | None:
     """The layout of a room from its views' masks (see the module docstring).
+
+    The search for up starts from the cameras' mean up direction; where the layout found from
+    there puts less than :data:`MIN_ON_WALLS` of the boundary cuts on its walls, it starts again
+    from the world axis nearest to that direction (inputs are often already gravity-aligned) and
+    keeps the layout with more on its walls.
 
     Args:
         cameras: the views' cameras.
@@ -293,20 +358,62 @@ def room_layout(cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids
     floor_rays = _subsample(*boundary_rays(cameras, labels, class_ids["floor"], class_ids["wall"]))
     if len(floor_rays[0]) == 0:
         return None
-    up = -cameras.c2w[:, :3, 1].mean(axis=0)  # the cameras' mean up (OpenCV: y points down)
-    up, floor = _refined_up(*floor_rays, up / np.linalg.norm(up), below=True)
-    points = [_cuts(*floor_rays, up, floor)]
-    ceiling = None
+    ceiling_rays = None
     if "ceiling" in class_ids:
         ceiling_rays = _subsample(*boundary_rays(cameras, labels, class_ids["wall"], class_ids["ceiling"]))
-        if len(ceiling_rays[0]):
-            ceiling = plane_offset(*ceiling_rays, up, below=False)[0]
-            points.append(_cuts(*ceiling_rays, up, ceiling))
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    plane = np.stack([e1, np.cross(up, e1)])  # [2, 3] a horizontal basis
-    rot, walls = _walls(np.concatenate(points) @ plane.T)
-    return RoomLayout(up=up, floor=floor, ceiling=ceiling, basis=rot @ plane, walls=walls)
+    up = -cameras.c2w[:, :3, 1].mean(axis=0)  # the cameras' mean up (OpenCV: y points down)
+    up /= np.linalg.norm(up)
+    centre = cameras.c2w[:, :3, 3].mean(axis=0)
+    layout = _layout_from(floor_rays, ceiling_rays, up, centre)
+    axis = np.zeros(3)
+    axis[int(np.argmax(np.abs(up)))] = np.sign(up[int(np.argmax(np.abs(up)))])
+    if layout.on_walls < MIN_ON_WALLS and not np.allclose(axis, up):
+        other = _layout_from(floor_rays, ceiling_rays, axis, centre)
+        layout = max((layout, other), key=lambda candidate: candidate.on_walls)
+    return layout
+
+
+def _layout_from(
+    floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray] | None,
+    up: np.ndarray, centre: np.ndarray,
+) -> RoomLayout:
+    """:func:`room_layout` from one starting ``up``. Heights and wall offsets are searched about the
+    cameras' centroid ``centre`` (tilting up then barely moves a plane's height) and given back
+    about the world's origin."""
+    floor_rays = (floor_rays[0] - centre, floor_rays[1])
+    # up and the floor where the floor's boundary cuts agree in the plane; the walls' direction from
+    # those cuts; then up, the floor and that direction where the cuts agree along the walls
+    search = _subsample(*floor_rays, MAX_SEARCH_RAYS)
+    up, floor, _ = _refined_up(*search, up, None)
+    plane = _horizontal(up, np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    along = _walls(_cuts(*floor_rays, up, floor) @ plane.T)[0][0] @ plane
+    up, floor, along = _refined_up(*search, up, along)
+    floor = plane_offset(*floor_rays, up, True, floor, along)[0]
+    points = [_cuts(*floor_rays, up, floor)]
+    ceiling = None
+    if ceiling_rays is not None and len(ceiling_rays[0]):
+        ceiling_rays = (ceiling_rays[0] - centre, ceiling_rays[1])
+        ceiling = plane_offset(*ceiling_rays, up, below=False)[0]
+        ceiling = plane_offset(*ceiling_rays, up, False, ceiling, along)[0]
+        points.append(_cuts(*ceiling_rays, up, ceiling))
+    plane = _horizontal(up, along)
+    cuts = np.concatenate(points) @ plane.T
+    rot, walls = _walls(cuts)
+    q = cuts @ rot.T
+    on_walls = np.zeros(len(q), bool)
+    for w in walls:
+        inside = (q[:, 1 - w.axis] >= w.extent[0]) & (q[:, 1 - w.axis] <= w.extent[1])
+        on_walls |= (np.abs(q[:, w.axis] - w.offset) < WALL_BAND) & inside
+    basis = rot @ plane
+    shift = basis @ centre
+    walls = tuple(
+        dataclasses.replace(w, offset=w.offset + float(shift[w.axis]),
+                            extent=(w.extent[0] + float(shift[1 - w.axis]), w.extent[1] + float(shift[1 - w.axis])))
+        for w in walls
+    )
+    lift = float(centre @ up)
+    return RoomLayout(up=up, floor=floor + lift, ceiling=None if ceiling is None else ceiling + lift, basis=basis,
+                      walls=walls, on_walls=float(on_walls.mean()))
 
 
 def depth_from_layout(
@@ -337,8 +444,8 @@ def depth_from_layout(
     if "wall" in class_ids and layout.walls:
         m = np.nonzero(flat == class_ids["wall"])[0]
         o2, d2 = origins[m] @ layout.basis.T, directions[m] @ layout.basis.T
-        low = -np.inf if layout.floor is None else layout.floor - _WALL_BAND
-        high = np.inf if layout.ceiling is None else layout.ceiling + _WALL_BAND
+        low = -np.inf if layout.floor is None else layout.floor - WALL_BAND
+        high = np.inf if layout.ceiling is None else layout.ceiling + WALL_BAND
         nearest = np.full(len(m), np.inf)
         for wall in layout.walls:
             with np.errstate(divide="ignore", invalid="ignore"):

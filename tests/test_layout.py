@@ -1,0 +1,194 @@
+"""scenelabel.geometry.layout and scenelabel.data.layout_depth: a room's planes from its masks."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from scenelabel import load_scene, write_furnished_room, write_toy_scene
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
+from scenelabel.data.synthetic.scenes import ROOM_HALF, ROOM_HEIGHT
+from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.layout import (
+    MIN_ON_WALLS,
+    RoomLayout,
+    Wall,
+    boundary_rays,
+    depth_from_layout,
+    layout_class_ids,
+    plane_offset,
+    room_layout,
+)
+
+FLOOR, WALL, CEILING = 1, 2, 4
+IDS = {"floor": FLOOR, "wall": WALL, "ceiling": CEILING}
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    """The furnished room (interior [-3, 3]² x [0, 2.6]), 40 views at 160x120."""
+    return load_scene(write_furnished_room(tmp_path_factory.mktemp("layout") / "room"))
+
+
+def _rotation_x(degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+def test_layout_classes_are_matched_by_name():
+    assert layout_class_ids({1: "floor", 2: "wall", 4: "ceiling", 6: "table"}) == IDS
+    # a name that starts with the word and goes on after a non-letter; not "wallpaper"
+    assert layout_class_ids({3: "Floor-Wood", 5: "wallpaper", 6: "wall_other", 7: "ceiling "}) == {
+        "floor": 3, "wall": 6, "ceiling": 7
+    }
+    assert layout_class_ids({1: "floor", 9: "floor mat"}) == {"floor": 1}  # the first id in ascending order
+    assert layout_class_ids({0: "unlabelled"}) == {}
+
+
+def test_boundary_rays_pass_through_the_pixel_edges_where_the_classes_meet():
+    """Against a naive loop: the edge between a wall pixel above and a floor pixel below at
+    (c + 0.5, r + 1); between left-right neighbours at (c + 1, r + 0.5), either way round."""
+    label = np.array([[2, 2, 2, 4], [2, 1, 2, 2], [1, 1, 1, 2]])
+    cams = Cameras.create(np.eye(4), fx=10.0, fy=12.0, cx=2.0, cy=1.5, width=4, height=3)
+    origins, directions = boundary_rays(cams, [label], lower=FLOOR, upper=WALL)
+    edges = []
+    for r in range(3):
+        for c in range(4):
+            if r > 0 and label[r - 1, c] == WALL and label[r, c] == FLOOR:
+                edges.append((c + 0.5, float(r)))
+    for r in range(3):
+        for c in range(3):
+            if {label[r, c], label[r, c + 1]} == {FLOOR, WALL}:
+                edges.append((c + 1.0, r + 0.5))
+    expected = np.array([[(u - 2.0) / 10.0, (v - 1.5) / 12.0, 1.0] for u, v in edges])
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    got = sorted(map(tuple, np.round(directions, 12)))
+    assert got == sorted(map(tuple, np.round(expected, 12)))
+    np.testing.assert_array_equal(origins, 0.0)
+    assert len(boundary_rays(cams, [None], FLOOR, WALL)[0]) == 0
+    with pytest.raises(InputError, match="label images"):
+        boundary_rays(cams, [label, label], FLOOR, WALL)
+
+
+def test_plane_offset_finds_the_height_where_the_rays_from_many_cameras_agree():
+    """Rays from cameras at 1.2-1.8 m to points on a square's sides at height 0.3 (a floor's
+    boundary with the walls): found within 5 mm (the search steps 2 mm, its bins are 1 cm)."""
+    rng = np.random.default_rng(0)
+    t = rng.uniform(-2.0, 2.0, 3000)
+    side = rng.integers(0, 4, 3000)
+    targets = np.stack([np.where(side < 2, np.where(side == 0, -2.0, 2.0), t),
+                        np.where(side < 2, t, np.where(side == 2, -2.0, 2.0)), np.full(3000, 0.3)], 1)
+    origins = np.column_stack([rng.uniform(-1.0, 1.0, (3000, 2)), rng.uniform(1.2, 1.8, 3000)])
+    directions = (targets - origins) / np.linalg.norm(targets - origins, axis=1, keepdims=True)
+    height, agreement = plane_offset(origins, directions, np.array([0.0, 0.0, 1.0]), below=True)
+    assert abs(height - 0.3) < 0.005 and 0 < agreement <= 1
+    with pytest.raises(InputError, match="no boundary rays"):
+        plane_offset(origins[:0], directions[:0], np.array([0.0, 0.0, 1.0]), below=True)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 3.0])
+def test_room_layout_recovers_the_rooms_planes(room, tilt):
+    """The furnished room, and the same room with its world turned 3 degrees about x (up is then
+    not the cameras' mean up): floor and ceiling within 1 cm, up within 0.2 degrees, four walls
+    within 2 cm of the room's interior faces."""
+    rotation = _rotation_x(tilt)
+    c2w = room.cameras.c2w.copy()
+    c2w[:, :3, :] = rotation @ c2w[:, :3, :]
+    cams = dataclasses.replace(room.cameras, c2w=c2w)
+    layout = room_layout(cams, room.labels, IDS)
+    up = rotation @ np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(min(1.0, float(layout.up @ up)))) < 0.2
+    assert abs(layout.floor) < 0.01 and abs(layout.ceiling - ROOM_HEIGHT) < 0.01
+    assert len(layout.walls) == 4
+    for wall in layout.walls:  # each wall is one of the four faces, along the rotated x or y axis
+        normal = layout.basis[wall.axis]
+        axis = int(np.argmax(np.abs(rotation.T @ normal)))
+        assert axis in (0, 1) and abs(abs(wall.offset) - ROOM_HALF) < 0.02
+
+
+def test_layout_depth_matches_the_true_depth_of_floor_wall_and_ceiling_pixels(room):
+    layout = room_layout(room.cameras, room.labels, IDS)
+    errors, covered = [], []
+    for i in range(len(room)):
+        depth = depth_from_layout(layout, room.cameras, i, room.labels[i], IDS)
+        planar = np.isin(room.labels[i], [FLOOR, WALL, CEILING])
+        assert not np.isfinite(depth[~planar]).any()  # other classes: no depth
+        ok = np.isfinite(depth) & planar
+        covered.append(ok.sum() / planar.sum())
+        errors.append(np.abs(depth[ok] - room.depths[i][ok]) / room.depths[i][ok])
+    errors = np.concatenate(errors)
+    assert np.median(errors) < 0.005 and np.mean(errors < 0.02) > 0.97 and np.mean(covered) > 0.95
+
+
+def test_depth_from_layout_by_hand():
+    """A camera at height 1 looking along +x (OpenCV: z forward = world x, y down = world -z) at a
+    wall at x = 4 over a floor at 0: the centre pixel meets the wall at 4, a floor pixel its plane."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    c2w[:3, 3] = [0.0, 0.0, 1.0]
+    cams = Cameras.create(c2w, fx=2.0, fy=2.0, cx=1.5, cy=1.5, width=3, height=3)
+    layout = RoomLayout(up=np.array([0.0, 0.0, 1.0]), floor=0.0, ceiling=2.0, basis=np.eye(3)[:2],
+                        walls=(Wall(0, 4.0, (-5.0, 5.0), 10),))
+    label = np.array([[CEILING, WALL, 6], [WALL, WALL, WALL], [FLOOR, FLOOR, FLOOR]])
+    depth = depth_from_layout(layout, cams, 0, label, IDS)
+    assert depth[1, 1] == pytest.approx(4.0)
+    d = np.array([0.0, 1.0, 2.0]) @ c2w[:3, :3].T  # the ray of pixel (1.5, 2.5): (0, 0.5, 1) scaled
+    d /= np.linalg.norm(d)
+    assert depth[2, 1] == pytest.approx(1.0 / -d[2])  # down to the floor
+    assert np.isnan(depth[0, 2])  # a table pixel
+    no_walls = dataclasses.replace(layout, walls=())
+    assert np.isnan(depth_from_layout(no_walls, cams, 0, label, IDS)[1, 1])
+
+
+def test_with_layout_depth_uses_the_training_views_alone(room):
+    train = [i for i in range(len(room)) if i % 8]
+    scene, layout = with_layout_depth(room, train)
+    assert layout is not None and "room layout" in scene.info[DEPTH_SOURCE_KEY]
+    assert all(scene.sensor_depths[i] is None for i in range(len(room)) if i % 8 == 0)  # held out: none
+    assert all(np.isfinite(scene.sensor_depths[i]).mean() > 0.5 for i in train)
+    # held-out masks do not move the layout: changing them changes nothing
+    scrambled = dataclasses.replace(room, labels=[np.zeros_like(lab) if i % 8 == 0 else lab for i, lab in enumerate(room.labels)])
+    again = with_layout_depth(scrambled, train)[1]
+    assert (again.floor, again.ceiling, again.walls) == (layout.floor, layout.ceiling, layout.walls)
+    np.testing.assert_array_equal(again.up, layout.up)
+
+
+def test_without_floor_and_walls_or_with_sensor_depth_the_scene_is_unchanged(room, tmp_path):
+    toy = load_scene(write_toy_scene(tmp_path / "toy", n_train=7, n_test=1, width=24, height=18))  # no walls
+    same, layout = with_layout_depth(toy, list(range(len(toy))))
+    assert same is toy and layout is None
+    measured = dataclasses.replace(room, sensor_depths=list(room.depths))
+    assert with_layout_depth(measured, list(range(len(room))))[1] is None
+    blank = dataclasses.replace(room, labels=[np.full_like(lab, 6) for lab in room.labels])  # no boundary anywhere
+    assert with_layout_depth(blank, list(range(len(room))))[1] is None
+
+
+def test_a_layout_that_leaves_the_boundaries_off_its_walls_is_not_used(room):
+    """Masks whose floor and wall pixels are strewn at random meet everywhere, on no wall: the
+    layout found from them puts few of its boundary cuts on its walls and the scene keeps no depth."""
+    rng = np.random.default_rng(0)
+    strewn = dataclasses.replace(room, labels=[rng.choice([FLOOR, WALL], size=lab.shape) for lab in room.labels])
+    train = list(range(8))
+    layout = room_layout(strewn.cameras[train], [strewn.labels[i] for i in train], IDS)
+    assert layout is not None and layout.on_walls < MIN_ON_WALLS
+    scene, used = with_layout_depth(strewn, train)
+    assert used is None and scene is strewn
+
+
+def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
+    """The build records the layout as its depth source and trains as with sensor depth (the
+    grid decay "auto" resolves to the with-depth value); with data.layout_depth false, neither."""
+    from scenelabel import build, preset
+    from scenelabel.config import GRID_DECAY, GRID_DECAY_WITH_DEPTH
+
+    config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False, "write_renders": False}})
+    result = build(room, tmp_path / "with", config, progress=False)
+    assert "room layout" in result.field.meta["scene_info"][DEPTH_SOURCE_KEY]
+    assert result.field.config.sampling.grid_decay == GRID_DECAY_WITH_DEPTH
+    config.data.layout_depth = False
+    result = build(room, tmp_path / "without", config, progress=False)
+    assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]
+    assert result.field.config.sampling.grid_decay == GRID_DECAY
