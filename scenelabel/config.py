@@ -205,6 +205,20 @@ def resolve_by_depth(config: BuildConfig, with_depth: bool) -> BuildConfig:
     return dataclasses.replace(config, sampling=sc, train=tc)
 
 
+def resolve_for_layout(config: BuildConfig) -> BuildConfig:
+    """``config`` for a build whose only depth is its room layout's (``data.layout_depth``,
+    :mod:`scenelabel.data.layout_depth`): no space carving, since the layout gives furniture no
+    depth and so nothing keeps the rays beside a chair leg or a table's edge from carving its cells
+    (docs/layout_suite.md); and ``train.steps`` / ``train.time_budget`` "auto" as without depth
+    (STEPS, TIME_BUDGET): the furniture's shape and labels still come from colour."""
+    tc = config.train
+    if tc.steps == AUTO:
+        tc = dataclasses.replace(tc, steps=STEPS)
+    if tc.time_budget == AUTO:
+        tc = dataclasses.replace(tc, time_budget=TIME_BUDGET)
+    return dataclasses.replace(config, sampling=dataclasses.replace(config.sampling, depth_carve=False), train=tc)
+
+
 DISTORTION_AUTO_WEIGHT = 0.002
 """The distortion weight ``"auto"`` chooses where the views see the scene well."""
 

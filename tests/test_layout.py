@@ -73,6 +73,22 @@ def test_boundary_rays_pass_through_the_pixel_edges_where_the_classes_meet():
         boundary_rays(cams, [label, label], FLOOR, WALL)
 
 
+def test_spread_matches_a_naive_count():
+    """Σ count² / n² over square bins against a float64 dictionary count, in 1D and 2D."""
+    from scenelabel.geometry.layout import _spread
+
+    rng = np.random.default_rng(1)
+    points = rng.normal(0.0, 0.3, (500, 2))
+    for k in (1, 2):
+        counts: dict[tuple, int] = {}
+        for p in points[:, :k]:
+            key = tuple(int(np.floor(x / 0.05)) for x in p)
+            counts[key] = counts.get(key, 0) + 1
+        expected = sum(c * c for c in counts.values()) / len(points) ** 2
+        assert _spread(points[:, :k], 0.05) == pytest.approx(expected, rel=1e-12)
+    assert _spread(np.zeros((7, 2)), 0.05) == 1.0 and _spread(points[:0], 0.05) == 0.0
+
+
 def test_plane_offset_finds_the_height_where_the_rays_from_many_cameras_agree():
     """Rays from cameras at 1.2-1.8 m to points on a square's sides at height 0.3 (a floor's
     boundary with the walls): found within 5 mm (the search steps 2 mm, its bins are 1 cm)."""
@@ -139,6 +155,10 @@ def test_depth_from_layout_by_hand():
     d /= np.linalg.norm(d)
     assert depth[2, 1] == pytest.approx(1.0 / -d[2])  # down to the floor
     assert np.isnan(depth[0, 2])  # a table pixel
+    horizon = label.copy()
+    horizon[1] = FLOOR  # rays level with the floor never meet it: no depth, no warning
+    with np.errstate(all="raise"):
+        assert np.isnan(depth_from_layout(layout, cams, 0, horizon, IDS)[1]).all()
     no_walls = dataclasses.replace(layout, walls=())
     assert np.isnan(depth_from_layout(no_walls, cams, 0, label, IDS)[1, 1])
 
@@ -188,7 +208,18 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     result = build(room, tmp_path / "with", config, progress=False)
     assert "room layout" in result.field.meta["scene_info"][DEPTH_SOURCE_KEY]
     assert result.field.config.sampling.grid_decay == GRID_DECAY_WITH_DEPTH
+    assert result.field.config.sampling.depth_carve is False  # furniture has no depth to guard it from carving
     config.data.layout_depth = False
     result = build(room, tmp_path / "without", config, progress=False)
     assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]
     assert result.field.config.sampling.grid_decay == GRID_DECAY
+
+
+def test_a_layout_build_keeps_its_steps_and_budget_of_a_build_without_depth():
+    from scenelabel import preset
+    from scenelabel.config import STEPS, TIME_BUDGET, resolve_for_layout
+
+    resolved = resolve_for_layout(preset("fast"))
+    assert (resolved.train.steps, resolved.train.time_budget, resolved.sampling.depth_carve) == (STEPS, TIME_BUDGET, False)
+    given = resolve_for_layout(preset("fast", {"train": {"steps": 300, "time_budget": 20.0}}))
+    assert (given.train.steps, given.train.time_budget) == (300, 20.0)

@@ -19,11 +19,14 @@ The steps (numpy only):
    ``x . up = h``, land on the fewest distinct places: the walls' base (or top) lines seen from
    every camera agree only at the true height. The spread is counted in bins that grow with the
    distance from the cameras' mean height (so that heights near the cameras, where every ray's
-   cut collapses onto its camera, do not win).
-3. :func:`room_layout`: ``up`` from the cameras' mean up direction, refined with step 2's
-   agreement over tilts of a few degrees; the floor and ceiling heights; the walls' direction
-   (the horizontal rotation whose two axes bunch the boundary points most) and the walls (the
-   peaks of the points' coordinates along each axis, with the extent their points cover).
+   cut collapses onto its camera, do not win); in 2D bins, or, once the walls' direction is
+   known, in 1D bins along each of the walls' two axes (a wall's cuts then share one bin).
+3. :func:`room_layout`: ``up`` from the cameras' mean up direction, tilted a few degrees to where
+   step 2 agrees best in 2D; the walls' direction (the horizontal rotation whose two axes bunch
+   the cuts most); up, the floor and that direction refined along the walls; the ceiling; the
+   walls (the peaks of the cuts' coordinates along each axis, with the stretch their cuts cover).
+   Where few cuts lie on the walls found (``RoomLayout.on_walls``), once more from the world
+   axis nearest to the cameras' up.
 4. :func:`depth_from_layout`: per pixel labelled floor, ceiling or wall, the distance along its ray
    to that plane (for a wall: the nearest wall it meets within a wall's extent, between floor and
    ceiling); NaN elsewhere.
@@ -66,13 +69,13 @@ followed by a non-letter (``floor-wood``, ``floor_other``), is the floor; likewi
 
 BIN = 0.02
 """Bin side (world units, at 1.5 units from the cameras' mean height) in which :func:`plane_offset`
-counts where the boundary rays land; finer bins at the refining pass."""
+counts where the boundary rays land; half of it in the search at 2 mm steps."""
 
 MAX_BOUNDARY_RAYS = 20_000
-"""At most this many boundary rays (an even subsample) enter each search."""
+"""At most this many boundary rays of each kind (an even subsample) enter a layout."""
 
 MAX_SEARCH_RAYS = 5_000
-"""At most this many of them (an even subsample) enter the search for up."""
+"""At most this many floor boundary rays (an even subsample) enter the search for up."""
 
 MIN_ON_WALLS = 0.55
 """A layout with less than this share of its boundary cuts on its walls (:attr:`RoomLayout.on_walls`)
@@ -85,12 +88,13 @@ MIN_WALL_SUPPORT = 0.02
 SEARCH_SPAN = 4.0
 """World units from the cameras within which :func:`plane_offset` looks for a floor or ceiling."""
 
+WALL_BAND = 0.03
+"""World units: boundary cuts this close to a wall's line belong to it."""
+
 # (half range, step) in degrees of the passes refining up: in the plane from the cameras' mean up,
 # then along the walls
 _TILTS_PLANE = ((4.0, 1.0), (1.0, 0.25))
 _TILTS_WALLS = ((1.0, 0.25), (0.25, 0.05))
-WALL_BAND = 0.03
-"""World units: boundary cuts this close to a wall's line belong to it."""
 _EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
 
 
@@ -448,12 +452,12 @@ def depth_from_layout(
         high = np.inf if layout.ceiling is None else layout.ceiling + WALL_BAND
         nearest = np.full(len(m), np.inf)
         for wall in layout.walls:
-            with np.errstate(divide="ignore", invalid="ignore"):
+            with np.errstate(divide="ignore", invalid="ignore"):  # rays along a wall: t inf, no hit
                 t = (wall.offset - o2[:, wall.axis]) / d2[:, wall.axis]
-            along = o2[:, 1 - wall.axis] + d2[:, 1 - wall.axis] * t
-            height = o_h[m] + d_h[m] * t
-            hit = (np.isfinite(t) & (t > 0) & (along >= wall.extent[0]) & (along <= wall.extent[1])
-                   & (height >= low) & (height <= high))
+                along = o2[:, 1 - wall.axis] + d2[:, 1 - wall.axis] * t
+                height = o_h[m] + d_h[m] * t
+                hit = (np.isfinite(t) & (t > 0) & (along >= wall.extent[0]) & (along <= wall.extent[1])
+                       & (height >= low) & (height <= high))
             nearest = np.where(hit & (t < nearest), t, nearest)
         depth[m] = np.where(np.isfinite(nearest), nearest, np.nan)
     return depth.reshape(label.shape)

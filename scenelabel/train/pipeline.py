@@ -37,6 +37,7 @@ from scenelabel.config import (
     config_to_dict,
     preset,
     render_background,
+    resolve_for_layout,
 )
 from scenelabel.data.io import load_scene
 from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
@@ -158,8 +159,7 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     "random" training)."""
     class_ids = field.class_ids
     background = render_background(field.config.train.background)
-    background = None if background is None else np.asarray(background, np.float32)
-    ignore = scene.ignore_index
+    background, ignore = None if background is None else np.asarray(background, np.float32), scene.ignore_index
     conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
     conf_smooth = np.zeros_like(conf)
     per_view, depth_errs = [], []
@@ -298,9 +298,8 @@ def _trainer(
     aabb_n = torch.as_tensor(frame.to_normalised(aabb), dtype=torch.float32)
     warp = choose_warp(config.sampling.warp, scene.cameras[train_idx], frame, aabb_n)
     model = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
-    coarse = None
-    if config.sampling.strategy == "hierarchical":  # NeRF's coarse network: the same architecture
-        coarse = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp)
+    hierarchical = config.sampling.strategy == "hierarchical"  # NeRF's coarse network: the same architecture
+    coarse = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp) if hierarchical else None
     sc = config.sampling
     grid = DensityGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
     rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
@@ -578,8 +577,10 @@ def build(
         scene = scaled_to_sensor_depth(scene, progress)
     if scene.sensor_depths is None and config.data.layout_depth:
         scene, layout = with_layout_depth(scene, choose_views(scene, config.train.holdout)[0])
-        if progress and layout is not None:
-            print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}", file=sys.stderr)
+        if layout is not None:
+            config = resolve_for_layout(config)
+            if progress:
+                print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}", file=sys.stderr)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
