@@ -205,12 +205,8 @@ def _cut_agreement(
     their two coordinates along the walls (1D bins: a wall's points share one bin at the true
     height and up, which counts far more points per bin than 2D bins). Bins scale with the
     distance from the cameras' mean height / 1.5."""
-    o_h, d_h = origins @ up, directions @ up
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (height - o_h) / d_h
-    ahead = np.isfinite(t) & (t > 0)
-    points = origins[ahead] + directions[ahead] * t[ahead, None]
-    size = bin_size * max(abs(float(o_h.mean()) - height), 1e-6) / 1.5
+    points = _cuts(origins, directions, up, height)
+    size = bin_size * max(abs(float((origins @ up).mean()) - height), 1e-6) / 1.5
     if walls is None:
         return _spread(points, size)
     q = points @ _horizontal(up, walls).T
@@ -305,6 +301,7 @@ def _subsample(origins: np.ndarray, directions: np.ndarray, limit: int = MAX_BOU
 
 
 def _cuts(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
+    """[k, 3] where the rays meet the plane ``x . up = height`` in front of their origins."""
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (height - origins @ up) / (directions @ up)
     ahead = np.isfinite(t) & (t > 0)
@@ -312,14 +309,21 @@ def _cuts(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: f
 
 
 def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
-    """The Manhattan rotation (angle in [0, 90) degrees, 0.25 degree steps) and the walls of
-    boundary points ``points`` [n, 2] given in any horizontal basis."""
+    """The Manhattan rotation [2, 2] of boundary cuts ``points`` [n, 2] (given in any horizontal
+    basis): the angle in [0, 90) degrees, in 0.25 degree steps, whose two axes bunch them most
+    (:func:`_spread` of each coordinate, :data:`BIN`); and the walls along those axes: the 1 cm bins
+    of a coordinate holding at least MIN_WALL_SUPPORT of the cuts, largest first, each at least
+    10 cm from a larger one, placed at the median of the cuts within WALL_BAND of it."""
     angles = np.radians(np.arange(0.0, 90.0, 0.25))
 
     def rotation(t: float) -> np.ndarray:
         return np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
 
-    scores = [_spread((points @ rotation(t).T)[:, :1], BIN) + _spread((points @ rotation(t).T)[:, 1:], BIN) for t in angles]
+    def bunched(t: float) -> float:
+        q = points @ rotation(t).T
+        return _spread(q[:, :1], BIN) + _spread(q[:, 1:], BIN)
+
+    scores = [bunched(t) for t in angles]
     rot = rotation(float(angles[int(np.argmax(scores))]))
     q = points @ rot.T
     walls = []
