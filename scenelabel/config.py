@@ -209,7 +209,7 @@ def resolve_for_layout(config: BuildConfig) -> BuildConfig:
     """``config`` for a build whose only depth is its room layout's (``data.layout_depth``,
     :mod:`scenelabel.data.layout_depth`): no space carving, since the layout gives furniture no
     depth and so nothing keeps the rays beside a chair leg or a table's edge from carving its cells
-    (docs/layout_suite.md); and ``train.steps`` / ``train.time_budget`` "auto" as without depth
+    (docs/layout_carve_first.md); and ``train.steps`` / ``train.time_budget`` "auto" as without depth
     (STEPS, TIME_BUDGET): the furniture's shape and labels still come from colour."""
     tc = config.train
     if tc.steps == AUTO:
