@@ -43,7 +43,8 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     ids = layout_class_ids(scene.classes)
     if scene.sensor_depths is not None or "floor" not in ids or "wall" not in ids:
         return scene, None
-    layout = room_layout(scene.cameras[train], [scene.labels[i] for i in train], ids)
+    cameras = scene.cameras[train]
+    layout = room_layout(cameras, [scene.labels[i] for i in train], ids)
     if layout is None or layout.on_walls < MIN_ON_WALLS:
         return scene, None
     depths: list[np.ndarray | None] = [None] * len(scene)
@@ -51,7 +52,7 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     for n, i in enumerate(train):
         if scene.labels[i] is None:
             continue
-        depth = depth_from_layout(layout, scene.cameras[train], n, scene.labels[i], ids).astype(np.float32)
+        depth = depth_from_layout(layout, cameras, n, scene.labels[i], ids).astype(np.float32)
         depths[i] = depth
         covered += int(np.isfinite(depth).sum())
         total += depth.size

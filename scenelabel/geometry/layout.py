@@ -247,11 +247,14 @@ def plane_offset(
     return float(fine[k]), float(scores[k])
 
 
+def _world_axis_across(up: np.ndarray) -> np.ndarray:
+    """World x, or world y where ``up`` is near x: an axis far from parallel to ``up``."""
+    return np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+
+
 def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
     """``up`` turned by ``a`` and ``b`` degrees about two axes normal to it."""
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up, e1)
+    e1, e2 = _horizontal(up, np.cross(up, _world_axis_across(up)))
     v = up + np.tan(np.radians(a)) * e1 + np.tan(np.radians(b)) * e2
     return v / np.linalg.norm(v)
 
@@ -393,7 +396,7 @@ def _layout_from(
     # those cuts; then up, the floor and that direction where the cuts agree along the walls
     search = _subsample(*floor_rays, MAX_SEARCH_RAYS)
     up, floor, _ = _refined_up(*search, up, None)
-    plane = _horizontal(up, np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    plane = _horizontal(up, _world_axis_across(up))
     along = _walls(_cuts(*floor_rays, up, floor) @ plane.T)[0][0] @ plane
     up, floor, along = _refined_up(*search, up, along)
     floor = plane_offset(*floor_rays, up, True, floor, along)[0]
