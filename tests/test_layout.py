@@ -89,6 +89,43 @@ def test_spread_matches_a_naive_count():
     assert _spread(np.zeros((7, 2)), 0.05) == 1.0 and _spread(points[:0], 0.05) == 0.0
 
 
+def test_spreads_count_each_row_over_its_valid_entries_alone():
+    """Per row against a naive count over the valid entries; a row without any gives 0."""
+    from scenelabel.geometry.layout import _spreads
+
+    rng = np.random.default_rng(2)
+    cells = rng.integers(-3, 3, (4, 60, 2))
+    valid = rng.random((4, 60)) < 0.7
+    valid[3] = False
+    got = _spreads(cells, valid)
+    for row in range(3):
+        keys = [tuple(c) for c in cells[row][valid[row]]]
+        counts = [keys.count(k) for k in set(keys)]
+        assert got[row] == pytest.approx(sum(c * c for c in counts) / len(keys) ** 2, rel=1e-12)
+    assert got[3] == 0.0
+
+
+def test_running_mean_matches_a_naive_window():
+    from scenelabel.geometry.layout import _running_mean
+
+    counts = np.random.default_rng(3).integers(0, 9, 40).astype(np.float64)
+    padded = np.concatenate([np.zeros(5), counts, np.zeros(5)])
+    np.testing.assert_allclose(_running_mean(counts, 5), [padded[i:i + 11].mean() for i in range(40)], rtol=1e-12)
+
+
+def test_walls_are_the_peaks_that_stand_out_of_the_cuts_on_the_walls_across():
+    """The boundary cuts of a 10 x 6 room whose short walls' cuts are few and spread by 2 cm: all
+    four walls and no more; the long walls' cuts, spread evenly along x, make no wall across them."""
+    from scenelabel.geometry.layout import _walls
+
+    rng = np.random.default_rng(4)
+    long_walls = np.column_stack([rng.uniform(0, 10, 4000), rng.choice([0.0, 6.0], 4000)])
+    short_walls = np.column_stack([rng.choice([0.0, 10.0], 600) + rng.normal(0, 0.02, 600), rng.uniform(0, 6, 600)])
+    rotation, walls = _walls(np.concatenate([long_walls, short_walls]))
+    np.testing.assert_allclose(np.abs(rotation), np.eye(2), atol=1e-9)
+    assert sorted((w.axis, round(w.offset, 1)) for w in walls) == [(0, 0.0), (0, 10.0), (1, 0.0), (1, 6.0)]
+
+
 def test_plane_offset_finds_the_height_where_the_rays_from_many_cameras_agree():
     """Rays from cameras at 1.2-1.8 m to points on a square's sides at height 0.3 (a floor's
     boundary with the walls): found within 5 mm (the search steps 2 mm, its bins are 1 cm)."""
@@ -123,6 +160,19 @@ def test_room_layout_recovers_the_rooms_planes(room, tilt):
         normal = layout.basis[wall.axis]
         axis = int(np.argmax(np.abs(rotation.T @ normal)))
         assert axis in (0, 1) and abs(abs(wall.offset) - ROOM_HALF) < 0.02
+
+
+def test_room_layout_of_a_long_hall_seen_at_grazing_angles(tmp_path):
+    """hall-10x6 (24 views): its far walls' boundaries are seen at grazing angles, where the floor's
+    cuts alone agree best on a plane tilted about 11 degrees; the floor's and the ceiling's cuts
+    together (walls are vertical) find up within 0.2 degrees, and all four walls."""
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    hall = load_scene(write_suite_scene(tmp_path / "hall", dataclasses.replace(suite_spec("hall-10x6"), n_views=24)))
+    layout = room_layout(hall.cameras, hall.labels, layout_class_ids(hall.classes))
+    assert np.degrees(np.arccos(min(1.0, float(layout.up[2])))) < 0.2
+    assert abs(layout.floor) < 0.01 and abs(layout.ceiling - 3.2) < 0.01
+    assert len(layout.walls) == 4 and layout.on_walls >= MIN_ON_WALLS
 
 
 def test_layout_depth_matches_the_true_depth_of_floor_wall_and_ceiling_pixels(room):

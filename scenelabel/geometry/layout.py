@@ -22,11 +22,15 @@ The steps (numpy only):
    cut collapses onto its camera, do not win); in 2D bins, or, once the walls' direction is
    known, in 1D bins along each of the walls' two axes (a wall's cuts then share one bin).
 3. :func:`room_layout`: ``up`` from the cameras' mean up direction, tilted a few degrees to where
-   step 2 agrees best in 2D; the walls' direction (the horizontal rotation whose two axes bunch
-   the cuts most); up, the floor and that direction refined along the walls; the ceiling; the
-   walls (the peaks of the cuts' coordinates along each axis, with the stretch their cuts cover).
-   Where few cuts lie on the walls found (``RoomLayout.on_walls``), once more from the world
-   axis nearest to the cameras' up.
+   the floor's and the ceiling's cuts, each at its own best height, agree best together: walls
+   are vertical, so only the true up puts a wall's base and its top on one line. (The floor's
+   cuts alone are not enough: where far walls are seen at grazing angles their cuts are loose,
+   and a plane tilted by ten degrees bunches them better than the true one.) Then the walls'
+   direction (the horizontal rotation whose two axes bunch the cuts most); up, the floor and that
+   direction refined along the walls; the ceiling; the walls (the peaks of the cuts' coordinates
+   along each axis that stand out of the even spread of the cuts on the walls across, with the
+   stretch their cuts cover). Where few cuts lie on the walls found (``RoomLayout.on_walls``),
+   once more from the world axis nearest to the cameras' up.
 4. :func:`depth_from_layout`: per pixel labelled floor, ceiling or wall, the distance along its ray
    to that plane (for a wall: the nearest wall it meets within a wall's extent, between floor and
    ceiling); NaN elsewhere.
@@ -83,7 +87,8 @@ is not what the room is: :func:`room_layout` searches again from another start, 
 :mod:`scenelabel.data.layout_depth` does not use it."""
 
 MIN_WALL_SUPPORT = 0.02
-"""A wall is a peak holding at least this fraction of the boundary points."""
+"""A wall is a peak holding at least this fraction of the boundary points within :data:`WALL_BAND`
+of it, over the even spread of the points around it."""
 
 SEARCH_SPAN = 4.0
 """World units from the cameras within which :func:`plane_offset` looks for a floor or ceiling."""
@@ -96,6 +101,10 @@ WALL_BAND = 0.03
 _TILTS_PLANE = ((4.0, 1.0), (1.0, 0.25))
 _TILTS_WALLS = ((1.0, 0.25), (0.25, 0.05))
 _EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
+_FAR = 1e3  # world units: boundary rays meeting a plane farther than this tell nothing about it
+_HEIGHT_REACH = 0.3  # world units about the starting up's heights a tilted up's are searched within
+_WALL_GAP = 0.2  # world units: two walls along one axis are at least this far apart
+_BACKGROUND = 0.5  # world units each side over which the cuts' background count is a mean
 
 
 @dataclass(frozen=True)
@@ -176,17 +185,25 @@ def boundary_rays(
     return np.concatenate(origins), np.concatenate(directions)
 
 
+def _spreads(cells: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """[m]: per row of ``cells`` [m, n, k] (integer bin coordinates, k <= 2, each below 2^30 in
+    size), Σ count² / v² over the bins of its ``valid`` [m, n] entries (v of them): 1 when they
+    all share one bin, 1 / v when none does, 0 when v = 0."""
+    m, n = valid.shape
+    key = cells[..., 0] if cells.shape[-1] == 1 else cells[..., 0] * (1 << 32) + cells[..., 1]
+    key = np.sort(np.where(valid, key, np.iinfo(np.int64).max - np.arange(n)), axis=1)  # invalid: alone
+    starts = np.ones((m, n), bool)
+    starts[:, 1:] = key[:, 1:] != key[:, :-1]
+    counts = np.bincount(np.cumsum(starts.ravel()) - 1).astype(np.float64)
+    squares = np.bincount(np.nonzero(starts)[0], weights=counts**2, minlength=m)
+    v = valid.sum(axis=1)
+    return np.where(v > 0, (squares - (n - v)) / np.maximum(v, 1) ** 2, 0.0)
+
+
 def _spread(points: np.ndarray, bin_size: float) -> float:
-    """Σ count² / n² of ``points`` [n, k] (k <= 2) binned in squares of ``bin_size``: 1 when every
-    point shares one bin, 1 / n when none does."""
-    if len(points) == 0:
-        return 0.0
-    cells = np.floor(points / bin_size).astype(np.int64)
-    key = cells[:, 0] if cells.shape[1] == 1 else cells[:, 0] * (1 << 32) + cells[:, 1]
-    key = np.sort(key)
-    edges = np.flatnonzero(np.diff(key)) + 1
-    counts = np.diff(np.concatenate([[0], edges, [len(key)]])).astype(np.float64)
-    return float((counts**2).sum()) / len(points) ** 2
+    """:func:`_spreads` of ``points`` [n, k] (k <= 2) binned in squares of ``bin_size``."""
+    cells = np.floor(points / bin_size).astype(np.int64)[None]
+    return float(_spreads(cells, np.ones(cells.shape[:2], bool))[0])
 
 
 def _horizontal(up: np.ndarray, direction: np.ndarray) -> np.ndarray:
@@ -196,31 +213,51 @@ def _horizontal(up: np.ndarray, direction: np.ndarray) -> np.ndarray:
     return np.stack([b1, np.cross(up, b1)])
 
 
-def _cut_agreement(
-    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float, bin_size: float,
+def _cut_cells(
+    rays: tuple[np.ndarray, np.ndarray], up: np.ndarray, heights: np.ndarray, sizes: np.ndarray, basis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The bins where the rays meet the planes ``x . up = heights[j]``: their coordinates along the
+    rows of ``basis`` [2, 3] divided by ``sizes[j]``, floored. Returns cells [m, n, 2] (int64) and
+    valid [m, n]: the plane met in front of the ray's origin, within :data:`_FAR` (a ray nearly
+    parallel to the plane meets it too far away to tell anything; bins beyond 2^30 are clipped)."""
+    origins, directions = rays
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t = (heights[:, None] - origins @ up) / (directions @ up)  # [m, n]
+        valid = (t > 0) & (t < _FAR)
+        t = np.where(valid, t, 0.0)
+    q = (origins @ basis.T + (directions @ basis.T) * t[..., None]) / sizes[:, None, None]
+    return np.floor(np.clip(q, -(1 << 30), 1 << 30)).astype(np.int64), valid
+
+
+def _agreement(cells: np.ndarray, valid: np.ndarray, along_walls: bool) -> np.ndarray:
+    """[m] :func:`_spreads` of 2D cells, or (``along_walls``) the sum of their two coordinates'."""
+    if not along_walls:
+        return _spreads(cells, valid)
+    return _spreads(cells[..., :1], valid) + _spreads(cells[..., 1:], valid)
+
+
+def _cut_agreements(
+    rays: tuple[np.ndarray, np.ndarray], up: np.ndarray, heights: np.ndarray, bin_size: float,
     walls: np.ndarray | None = None,
-) -> float:
-    """How well the rays, cut by the plane ``x . up = height``, agree: :func:`_spread` of the cuts
-    in the plane (2D bins), or, given the walls' direction ``walls`` [3], the sum of the spreads of
-    their two coordinates along the walls (1D bins: a wall's points share one bin at the true
-    height and up, which counts far more points per bin than 2D bins). Bins scale with the
-    distance from the cameras' mean height / 1.5."""
-    points = _cuts(origins, directions, up, height)
-    size = bin_size * max(abs(float((origins @ up).mean()) - height), 1e-6) / 1.5
-    if walls is None:
-        return _spread(points, size)
-    q = points @ _horizontal(up, walls).T
-    return _spread(q[:, :1], size) + _spread(q[:, 1:], size)
+) -> np.ndarray:
+    """[m]: how well the rays, cut by each plane ``x . up = heights[j]``, agree: :func:`_spreads` of
+    the cuts in the plane (2D bins), or, given the walls' direction ``walls`` [3], the sum of the
+    spreads of their two coordinates along the walls (1D bins: a wall's points share one bin at the
+    true height and up, which counts far more points per bin than 2D bins). Bins scale with the
+    plane's distance from the rays' mean height / 1.5."""
+    sizes = bin_size * np.maximum(np.abs(float((rays[0] @ up).mean()) - heights), 1e-6) / 1.5
+    basis = _horizontal(up, _world_axis_across(up) if walls is None else walls)
+    return _agreement(*_cut_cells(rays, up, heights, sizes, basis), walls is not None)
 
 
 def plane_offset(
     origins: np.ndarray, directions: np.ndarray, up: np.ndarray, below: bool,
-    near: float | None = None, walls: np.ndarray | None = None,
+    near: float | None = None, walls: np.ndarray | None = None, reach: float = 0.05,
 ) -> tuple[float, float]:
     """The height (along unit ``up``) of the plane on which the boundary rays agree
-    (:func:`_cut_agreement`): searched at 5 cm from 0.3 to :data:`SEARCH_SPAN` units below the
-    lowest ray origin (``below``) or above the highest, or within 5 cm of ``near`` when given; then
-    at 2 mm around the best.
+    (:func:`_cut_agreements`): searched at 5 cm from 0.3 to :data:`SEARCH_SPAN` units below the
+    lowest ray origin (``below``) or above the highest, or within ``reach`` of ``near`` when given;
+    then at 1 cm within 5 cm of the best, and at 2 mm within 1 cm of that.
 
     Args:
         origins, directions: [m, 3] boundary rays (:func:`boundary_rays`).
@@ -228,8 +265,9 @@ def plane_offset(
         below: the plane lies below the cameras (a floor) or above them (a ceiling).
         near: a height to search around (the best of a slightly different ``up``).
         walls: [3] a direction along the walls (their agreement is then counted along the walls).
+        reach: how far from ``near`` to search.
     Returns:
-        (height, agreement): the agreement is :func:`_cut_agreement`'s, in (0, 2].
+        (height, agreement): the agreement is :func:`_cut_agreements`', in (0, 2].
     """
     if len(origins) == 0:
         raise InputError("no boundary rays to find a plane from", field="origins")
@@ -239,10 +277,14 @@ def plane_offset(
             coarse = np.arange(heights.min() - SEARCH_SPAN, heights.min() - 0.3, 0.05)
         else:
             coarse = np.arange(heights.max() + 0.3, heights.max() + SEARCH_SPAN, 0.05)
-        scores = [_cut_agreement(origins, directions, up, h, BIN, walls) for h in coarse]
-        near = float(coarse[int(np.argmax(scores))])
-    fine = np.arange(near - 0.05, near + 0.05 + 1e-9, 0.002)
-    scores = [_cut_agreement(origins, directions, up, h, BIN / 2, walls) for h in fine]
+    elif reach > 0.05:
+        coarse = np.arange(near - reach, near + reach + 1e-9, 0.05)
+    if near is None or reach > 0.05:
+        near = float(coarse[int(np.argmax(_cut_agreements((origins, directions), up, coarse, BIN, walls)))])
+    for span, step in ((0.05, 0.01), (0.01, 0.002)):
+        fine = np.arange(near - span, near + span + 1e-9, step)
+        scores = _cut_agreements((origins, directions), up, fine, BIN / 2, walls)
+        near = float(fine[int(np.argmax(scores))])
     k = int(np.argmax(scores))
     return float(fine[k]), float(scores[k])
 
@@ -260,20 +302,37 @@ def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
 
 
 def _refined_up(
-    origins: np.ndarray, directions: np.ndarray, up: np.ndarray, walls: np.ndarray | None
+    floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray] | None,
+    up: np.ndarray, walls: np.ndarray | None,
 ) -> tuple[np.ndarray, float, np.ndarray | None]:
-    """``up`` tilted to where the floor's boundary rays agree best at their best height: one tilt
-    at a time, in passes of (half range, step) degrees, the first pass searching every height and
-    the others near the best so far. Without ``walls``, agreement in the plane (:data:`_TILTS_PLANE`);
-    with ``walls`` (a direction along them), agreement along the walls, the walls' direction turned
-    about up as a third angle (:data:`_TILTS_WALLS`). Returns (up, height, walls)."""
+    """``up`` tilted to where the boundary rays agree best: one tilt at a time, in passes of
+    (half range, step) degrees. Each candidate's floor (and ceiling) height is its own best
+    (:func:`plane_offset`: in the first pass within :data:`_HEIGHT_REACH` of the best at the
+    starting ``up``, then near the best so far); the candidate's score is how well the floor's and the ceiling's cuts agree together
+    (:func:`_joint_agreement`: walls are vertical, so only the true up puts a wall's base and top
+    on one line), or the floor's alone without ceiling rays. Without ``walls``, agreement in the
+    plane (:data:`_TILTS_PLANE`); with ``walls`` (a direction along them), along the walls, the
+    walls' direction turned about up as a third angle (:data:`_TILTS_WALLS`). Returns (up, floor
+    height, walls)."""
     angles = np.zeros(3)  # tilts about two axes normal to up; the walls' turn about up
 
     def placed(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         tilted = _tilted(up, angles[0], angles[1])
         return tilted, None if walls is None else _turned(tilted, walls, angles[2])
 
-    height = None
+    heights = [plane_offset(*floor_rays, up, True, None, walls)[0], None]
+    if ceiling_rays is not None:
+        heights[1] = plane_offset(*ceiling_rays, up, False, None, walls)[0]
+    reach = _HEIGHT_REACH
+
+    def scored(angles: np.ndarray) -> tuple[float, list]:
+        tilted, along = placed(angles)
+        floor, agreement = plane_offset(*floor_rays, tilted, True, heights[0], along, reach)
+        if ceiling_rays is None:
+            return agreement, [floor, None]
+        ceiling = plane_offset(*ceiling_rays, tilted, False, heights[1], along, reach)[0]
+        return _joint_agreement(floor_rays, ceiling_rays, tilted, (floor, ceiling), along), [floor, ceiling]
+
     for half, step in _TILTS_PLANE if walls is None else _TILTS_WALLS:
         for axis in (0, 1) * 2 if walls is None else (0, 1, 2) * 2:
             candidates = []
@@ -281,11 +340,23 @@ def _refined_up(
                 c = angles.copy()
                 c[axis] += x
                 candidates.append(c)
-            found = [plane_offset(origins, directions, *placed(c)[:1], True, height, placed(c)[1]) for c in candidates]
-            k = int(np.argmax([f[1] for f in found]))
+            found = [scored(c) for c in candidates]
+            k = int(np.argmax([f[0] for f in found]))
             angles = candidates[k]
-        height = found[k][0]
-    return (*placed(angles)[:1], height, placed(angles)[1])
+        heights, reach = found[k][1], 0.05
+    return (*placed(angles)[:1], heights[0], placed(angles)[1])
+
+
+def _joint_agreement(
+    floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray],
+    up: np.ndarray, heights: tuple[float, float], walls: np.ndarray | None,
+) -> float:
+    """How well the floor rays' cuts at ``heights[0]`` and the ceiling rays' at ``heights[1]``
+    agree together (:func:`_agreement` in :data:`BIN` bins of the plane normal to ``up``, or, given
+    the walls' direction, along its two axes)."""
+    basis = _horizontal(up, _world_axis_across(up) if walls is None else walls)
+    parts = [_cut_cells(rays, up, np.array([h]), np.array([BIN]), basis) for rays, h in zip((floor_rays, ceiling_rays), heights)]
+    return float(_agreement(np.concatenate([p[0] for p in parts], 1), np.concatenate([p[1] for p in parts], 1), walls is not None)[0])
 
 
 def _turned(up: np.ndarray, direction: np.ndarray, degrees: float) -> np.ndarray:
@@ -304,19 +375,30 @@ def _subsample(origins: np.ndarray, directions: np.ndarray, limit: int = MAX_BOU
 
 
 def _cuts(origins: np.ndarray, directions: np.ndarray, up: np.ndarray, height: float) -> np.ndarray:
-    """[k, 3] where the rays meet the plane ``x . up = height`` in front of their origins."""
+    """[k, 3] where the rays meet the plane ``x . up = height`` in front of their origins, within
+    :data:`_FAR`."""
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (height - origins @ up) / (directions @ up)
-    ahead = np.isfinite(t) & (t > 0)
+    ahead = (t > 0) & (t < _FAR)
     return origins[ahead] + directions[ahead] * t[ahead, None]
+
+
+def _running_mean(counts: np.ndarray, reach: int) -> np.ndarray:
+    """[n] the mean of ``counts`` [n] over each entry and its ``reach`` neighbours either side
+    (zeros beyond the ends)."""
+    total = np.concatenate([[0], np.cumsum(np.concatenate([counts, np.zeros(reach)]))])
+    hi = np.arange(len(counts)) + reach + 1
+    return (total[hi] - total[np.maximum(hi - 2 * reach - 1, 0)]) / (2 * reach + 1)
 
 
 def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     """The Manhattan rotation [2, 2] of boundary cuts ``points`` [n, 2] (given in any horizontal
     basis): the angle in [0, 90) degrees, in 0.25 degree steps, whose two axes bunch them most
     (:func:`_spread` of each coordinate, :data:`BIN`); and the walls along those axes: the 1 cm bins
-    of a coordinate holding at least MIN_WALL_SUPPORT of the cuts, largest first, each at least
-    10 cm from a larger one, placed at the median of the cuts within WALL_BAND of it."""
+    of a coordinate whose cuts within WALL_BAND, less the count an even spread at the mean density
+    of the surrounding metre would put there (the cuts on the walls across the axis), are at least
+    MIN_WALL_SUPPORT of all, largest first, each at least _WALL_GAP from a larger one, placed at the
+    median of the cuts within WALL_BAND of it."""
     angles = np.radians(np.arange(0.0, 90.0, 0.25))
 
     def rotation(t: float) -> np.ndarray:
@@ -332,13 +414,20 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     walls = []
     for axis in (0, 1):
         v = q[:, axis]
-        bins, counts = np.unique(np.floor(v / (BIN / 2)).astype(np.int64), return_counts=True)
+        cells = np.floor(v / (BIN / 2)).astype(np.int64)
+        first = int(cells.min())
+        counts = np.bincount(cells - first)
+        reach = int(round(WALL_BAND / (BIN / 2)))  # a wall's cuts spread over its band
+        support = np.convolve(counts, np.ones(2 * reach + 1, np.int64), mode="same")
+        # the cuts on the walls across this axis, spread evenly along it, are not a wall here
+        background = (2 * reach + 1) * _running_mean(counts, int(round(_BACKGROUND / (BIN / 2))))
+        excess = support - background
         taken: list[float] = []
-        for j in np.argsort(-counts, kind="stable"):
-            if counts[j] < MIN_WALL_SUPPORT * len(v):
+        for j in np.argsort(-excess, kind="stable"):
+            if excess[j] < MIN_WALL_SUPPORT * len(v):
                 break
-            centre = (bins[j] + 0.5) * BIN / 2
-            if any(abs(centre - t) <= 10 * BIN / 2 for t in taken):  # a peak's own shoulder
+            centre = (first + j + 0.5) * BIN / 2
+            if any(abs(centre - t) <= _WALL_GAP for t in taken):  # a peak's own shoulder
                 continue
             taken.append(centre)
             near = np.abs(v - centre) < WALL_BAND
@@ -395,10 +484,13 @@ def _layout_from(
     # up and the floor where the floor's boundary cuts agree in the plane; the walls' direction from
     # those cuts; then up, the floor and that direction where the cuts agree along the walls
     search = _subsample(*floor_rays, MAX_SEARCH_RAYS)
-    up, floor, _ = _refined_up(*search, up, None)
+    ceiling_search = None
+    if ceiling_rays is not None and len(ceiling_rays[0]):
+        ceiling_search = _subsample(ceiling_rays[0] - centre, ceiling_rays[1], MAX_SEARCH_RAYS)
+    up, floor, _ = _refined_up(search, ceiling_search, up, None)
     plane = _horizontal(up, _world_axis_across(up))
     along = _walls(_cuts(*floor_rays, up, floor) @ plane.T)[0][0] @ plane
-    up, floor, along = _refined_up(*search, up, along)
+    up, floor, along = _refined_up(search, ceiling_search, up, along)
     floor = plane_offset(*floor_rays, up, True, floor, along)[0]
     points = [_cuts(*floor_rays, up, floor)]
     ceiling = None
