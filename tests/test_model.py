@@ -108,6 +108,22 @@ def test_skip_mlp_matches_a_hand_written_forward():
     torch.testing.assert_close(mlp(x), lin[3](h))
     assert [m.in_features for m in lin] == [5, 8, 13, 8]
     torch.testing.assert_close(mlp(x, n_out=2), lin[3](h)[:, :2])  # only the first outputs
+    x_before = x.clone()
+    with torch.no_grad():  # in-place ReLUs without autograd: the same outputs, the input untouched
+        torch.testing.assert_close(mlp(x), lin[3](h), rtol=0, atol=0)
+    torch.testing.assert_close(x, x_before, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("network", sorted(NETWORKS))
+def test_features_without_autograd_are_the_features_with_it(network):
+    torch.manual_seed(4)
+    model = FieldNetwork(FieldConfig(**NETWORKS[network]), 5, AABB)
+    pts = torch.rand(64, 3) * 2 - 1
+    with_grad = model.features(pts)
+    with torch.no_grad():
+        without = model.features(pts)
+    for a, b in zip(with_grad, without):
+        torch.testing.assert_close(a.detach(), b, rtol=0, atol=0)
 
 
 @pytest.mark.parametrize("network", sorted(NETWORKS))

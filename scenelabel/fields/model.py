@@ -77,8 +77,10 @@ class SkipMLP(nn.Sequential):
 
     def forward(self, x: torch.Tensor, n_out: int | None = None) -> torch.Tensor:
         """x [n, in_dim] -> [n, out_dim], or with ``n_out`` only the first n_out outputs [n, n_out]
-        (the last layer's other rows are not computed)."""
+        (the last layer's other rows are not computed). Without autograd (queries, renders, maps)
+        the ReLUs work in place: no second [n, hidden] tensor per layer."""
         h, layer, last = x, 0, len(self) - 1
+        in_place = not torch.is_grad_enabled()
         for i, mod in enumerate(self):
             if isinstance(mod, nn.Linear):
                 if layer == self.skip:
@@ -86,7 +88,7 @@ class SkipMLP(nn.Sequential):
                 layer += 1
             if i == last and n_out is not None:
                 return F.linear(h, mod.weight[:n_out], mod.bias[:n_out])
-            h = mod(h)
+            h = torch.relu_(h) if in_place and isinstance(mod, nn.ReLU) else mod(h)
         return h
 
 
@@ -168,7 +170,7 @@ class FieldNetwork(nn.Module):
             out = self.trunk(self.encoding(unit), None if heads_input else self._n_density)
         raw, h = out[:, : self._n_density], out[:, self._n_density :]
         if not self.direct:
-            h = F.relu(h)
+            h = F.relu(h, inplace=not torch.is_grad_enabled())  # in place: h is out's own columns
         if self.config.class_head == "linear":
             sigmas = trunc_exp(raw[:, 0] + self.config.density_bias)
         else:
