@@ -13,6 +13,7 @@ from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_d
 from scenelabel.geometry.rays import camera_directions_from_pixels, rays_from_cameras
 from scenelabel.maps.visibility import (
     camera_surfaces,
+    front_depth,
     min_depth_over_neighbours,
     observed_voxels,
     project_points,
@@ -156,6 +157,44 @@ def test_distorted_pinholes_match_naive_loop_across_threads():
     fast = visible_from_cameras(pts, cams, depth_maps, margin=0.05, pixel_margin=0.5)
     np.testing.assert_array_equal(fast, naive_visible(pts, cams, depth_maps, margin=0.05, pixel_margin=0.5))
     assert 0.05 < fast.mean() < 0.95
+
+
+def _front_depth_naive(depth: np.ndarray) -> np.ndarray:
+    """Rule 5 of docs/conventions.md "Observed space", pixel by pixel in float64."""
+    h, w = depth.shape
+    out = np.empty((h, w))
+    for r in range(h):
+        for c in range(w):
+            def at(rr, cc):
+                return depth[min(max(rr, 0), h - 1), min(max(cc, 0), w - 1)]
+            low = min(at(r + i, c + j) for i in (-1, 0, 1) for j in (-1, 0, 1))
+            d = depth[r, c]
+            smooth = np.isfinite(d)
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                bend = at(r + dr, c + dc) + at(r - dr, c - dc) - 2 * d
+                smooth = smooth and np.isfinite(bend) and abs(bend) <= 0.1 * d
+            out[r, c] = 0.5 * (d + low) if smooth else low
+    return out
+
+
+def test_front_depth_on_a_grazing_floor_a_silhouette_and_the_sky():
+    """A floor seen at a grazing angle (depth growing about 6 % a row): the mean of a pixel's own
+    depth and its neighbours' smallest, nearer than its own and farther than the smallest; a box's
+    silhouette in front of it and rows that see nothing: the smallest; against a naive loop."""
+    rows = np.arange(12, dtype=np.float64)
+    depth = np.repeat((1.4 / np.sin(np.radians(20.0 - 0.75 * rows)))[:, None], 10, axis=1)  # a floor, far at the top
+    depth = depth[::-1].copy()
+    depth[:2] = np.inf  # above the horizon: nothing
+    depth[6:9, 3:6] = 1.0  # a box much nearer than the floor behind it
+    front, low = front_depth(depth), min_depth_over_neighbours(depth)
+    np.testing.assert_allclose(front, _front_depth_naive(depth), rtol=1e-12)
+    assert np.all(front >= low) and np.all(front <= depth)
+    floor = np.zeros_like(depth, bool)
+    floor[3:11, 8:] = True  # away from the box and the sky; not the nearest row (its own depth is the smallest)
+    floor[10, :] = True
+    assert np.all(front[floor] > low[floor]) and np.all(front[floor] < depth[floor])
+    np.testing.assert_array_equal(front[5:10, 2:7], low[5:10, 2:7])  # the box and the floor around its silhouette
+    np.testing.assert_array_equal(front[:3], low[:3])  # the sky and the row beside it
 
 
 def test_min_depth_over_neighbours():

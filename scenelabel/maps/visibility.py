@@ -31,8 +31,8 @@ opaque alone), and :func:`observed_voxels` applies the rule twice (docs/conventi
 "Observed space"): an *occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one
 pixel footprint (a surface voxel's centre may lie up to that far behind where the pixel ray
 meets the surface); a *transparent* voxel only when its centre is in front of the surface, with
-no margin, against :func:`min_depth_over_neighbours` of each depth map (so a voxel just behind a
-silhouette or a surface is never taken for observed free space)::
+no margin, against :func:`front_depth` of each depth map (so a voxel just behind a silhouette or
+a surface is never taken for observed free space)::
 
     small = scaled_cameras(train_cameras, DEPTH_MAP_WIDTH)
     observed, occupied = observed_voxels(occupancy, origin, voxel_size, small)   # [nx, ny, nz] bool each
@@ -61,6 +61,7 @@ __all__ = [
     "PIXEL_MARGIN",
     "SQRT3",
     "camera_surfaces",
+    "front_depth",
     "min_depth_over_neighbours",
     "observed_centres",
     "observed_voxels",
@@ -75,6 +76,11 @@ DEPTH_MAP_WIDTH = 80
 
 PIXEL_MARGIN = 1.0
 """Extra depth tolerance, in pixel footprints of the depth map at the point's distance."""
+
+SMOOTH_BEND = 0.1
+"""A depth-map pixel is on a smooth surface when, for each pair of opposite neighbours (a, b)
+around its depth d, |a + b - 2 d| <= SMOOTH_BEND x d: a plane seen at a grazing angle bends far
+less (its depth grows by a few percent a pixel), a silhouette's jump far more."""
 
 SQRT3 = math.sqrt(3.0)
 """A voxel's diagonal over its edge: maps use ``margin = SQRT3 * voxel_size``."""
@@ -230,6 +236,34 @@ def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
 
 
+def front_depth(depth: np.ndarray) -> np.ndarray:
+    """Each pixel's depth that a voxel centre falling in it must lie in front of to be observed free
+    space (docs/conventions.md, "Observed space", rule 5): on a smooth surface (:data:`SMOOTH_BEND`)
+    the mean of its own depth and :func:`min_depth_over_neighbours` (the surface's nearest depth
+    over the pixel's footprint, about half a pixel's step nearer than its centre's); elsewhere
+    (silhouettes, creases, pixels that see nothing or border them) the smallest over the 3 x 3
+    pixels, so that space just behind a silhouette is never taken for free. The smallest alone
+    marks the voxels just above a floor seen at a grazing angle as unobserved: a coarse pixel's
+    step there exceeds the voxel's height over the floor.
+
+    Args:
+        depth: [h, w] depth map (``inf`` = no surface).
+    Returns:
+        [h, w] float64, between :func:`min_depth_over_neighbours` and ``depth``.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    low = min_depth_over_neighbours(depth)
+    padded = np.pad(depth, 1, mode="edge")
+    h, w = depth.shape
+    smooth = np.isfinite(depth)
+    with np.errstate(invalid="ignore"):  # inf - inf: not smooth
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            a = padded[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            b = padded[1 - dr : 1 - dr + h, 1 - dc : 1 - dc + w]
+            smooth &= np.abs(a + b - 2.0 * depth) <= SMOOTH_BEND * depth
+    return np.where(smooth, 0.5 * (depth + low), low)
+
+
 @dataclass(frozen=True)
 class CameraSurfaces:
     """The surface along every pixel ray of some (small) cameras: what the visibility rule needs
@@ -239,7 +273,7 @@ class CameraSurfaces:
         cameras: n cameras (their lens models are used: rays and projection agree).
         depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to its surface,
             ``inf`` where the ray meets none.
-        front: n arrays [h_i, w_i]: :func:`min_depth_over_neighbours` of ``depth``.
+        front: n arrays [h_i, w_i]: :func:`front_depth` of ``depth``.
         voxels: [S, 3] int64, the distinct grid voxels those surfaces lie in (surfaces from
             ``occluder_depth``, outside the grid, are not voxels of it).
     """
@@ -290,7 +324,7 @@ def camera_surfaces(
         voxels.append(index[index[:, 0] >= 0])
         depth.append(hit.reshape(int(cameras.height[i]), int(cameras.width[i])))
     voxels = np.unique(np.concatenate(voxels), axis=0) if voxels else np.zeros((0, 3), np.int64)
-    return CameraSurfaces(cameras, depth, [min_depth_over_neighbours(d) for d in depth], voxels.reshape(-1, 3))
+    return CameraSurfaces(cameras, depth, [front_depth(d) for d in depth], voxels.reshape(-1, 3))
 
 
 def surface_mask(surfaces: CameraSurfaces, block: tuple[slice, slice, slice]) -> np.ndarray:
@@ -314,8 +348,7 @@ def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: C
 
     An occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
     with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
-    sees its centre in front of the nearest surface of its 3x3 pixels (``surfaces.front``, no
-    margin).
+    sees its centre in front of its pixel's :func:`front_depth` (``surfaces.front``, no margin).
 
     Args:
         centres: [V, 3] world voxel centres.
@@ -352,8 +385,7 @@ def observed_voxels(
     in it; then every voxel is classified (:func:`observed_centres`): an occupied voxel is
     observed when some camera sees its centre (:func:`visible_from_cameras`) with
     ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees
-    its centre in front of the nearest surface of its 3x3 pixels
-    (:func:`min_depth_over_neighbours`, no margin).
+    its centre in front of its pixel's :func:`front_depth` (no margin).
 
     Args:
         occupancy: [nx, ny, nz] per-voxel opacity in [0, 1], its uint8 codes, or bool (opaque voxels).
