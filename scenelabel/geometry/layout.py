@@ -308,12 +308,12 @@ def _refined_up(
     """``up`` tilted to where the boundary rays agree best: one tilt at a time, in passes of
     (half range, step) degrees. Each candidate's floor (and ceiling) height is its own best
     (:func:`plane_offset`: in the first pass within :data:`_HEIGHT_REACH` of the best at the
-    starting ``up``, then near the best so far); the candidate's score is how well the floor's and the ceiling's cuts agree together
-    (:func:`_joint_agreement`: walls are vertical, so only the true up puts a wall's base and top
-    on one line), or the floor's alone without ceiling rays. Without ``walls``, agreement in the
-    plane (:data:`_TILTS_PLANE`); with ``walls`` (a direction along them), along the walls, the
-    walls' direction turned about up as a third angle (:data:`_TILTS_WALLS`). Returns (up, floor
-    height, walls)."""
+    starting ``up``, then near the best so far); the candidate's score is how well the floor's
+    and the ceiling's cuts agree together (:func:`_joint_agreement`: walls are vertical, so only
+    the true up puts a wall's base and top on one line), or the floor's alone without ceiling
+    rays. Without ``walls``, agreement in the plane (:data:`_TILTS_PLANE`); with ``walls`` (a
+    direction along them), along the walls, the walls' direction turned about up as a third angle
+    (:data:`_TILTS_WALLS`). Returns (up, floor height, walls)."""
     angles = np.zeros(3)  # tilts about two axes normal to up; the walls' turn about up
 
     def placed(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -355,8 +355,10 @@ def _joint_agreement(
     agree together (:func:`_agreement` in :data:`BIN` bins of the plane normal to ``up``, or, given
     the walls' direction, along its two axes)."""
     basis = _horizontal(up, _world_axis_across(up) if walls is None else walls)
-    parts = [_cut_cells(rays, up, np.array([h]), np.array([BIN]), basis) for rays, h in zip((floor_rays, ceiling_rays), heights)]
-    return float(_agreement(np.concatenate([p[0] for p in parts], 1), np.concatenate([p[1] for p in parts], 1), walls is not None)[0])
+    parts = [_cut_cells(rays, up, np.array([h]), np.array([BIN]), basis)
+             for rays, h in zip((floor_rays, ceiling_rays), heights)]
+    cells, valid = (np.concatenate([p[k] for p in parts], axis=1) for k in (0, 1))
+    return float(_agreement(cells, valid, walls is not None)[0])
 
 
 def _turned(up: np.ndarray, direction: np.ndarray, degrees: float) -> np.ndarray:
