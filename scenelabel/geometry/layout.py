@@ -400,7 +400,7 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     of a coordinate whose cuts within WALL_BAND, less the count an even spread at the mean density
     of the surrounding metre would put there (the cuts on the walls across the axis), are at least
     MIN_WALL_SUPPORT of all, largest first, each at least _WALL_GAP from a larger one, placed at the
-    median of the cuts within WALL_BAND of it."""
+    median of those cuts."""
     angles = np.radians(np.arange(0.0, 90.0, 0.25))
 
     def rotation(t: float) -> np.ndarray:
@@ -432,7 +432,7 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
             if any(abs(centre - t) <= _WALL_GAP for t in taken):  # a peak's own shoulder
                 continue
             taken.append(centre)
-            near = np.abs(v - centre) < WALL_BAND
+            near = np.abs(cells - (first + j)) <= reach  # the cuts its support counted: at least one
             along = q[near, 1 - axis]
             extent = (float(np.percentile(along, 1)) - _EDGE_SLACK, float(np.percentile(along, 99)) + _EDGE_SLACK)
             walls.append(Wall(axis, float(np.median(v[near])), extent, int(near.sum())))
