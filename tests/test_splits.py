@@ -23,8 +23,9 @@ from scenelabel.errors import InputError
 from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.cameras import opengl_to_opencv
 from scenelabel.train import trainer as trainer_module
+from scenelabel.train.evaluation import evaluate
 from scenelabel.train.losses import composite_target
-from scenelabel.train.pipeline import choose_views, evaluate, prepare_training
+from scenelabel.train.pipeline import choose_views, prepare_training
 
 LEGO = DATA / "nerf_synthetic_lego"
 

@@ -4,7 +4,7 @@
     .venv/bin/python tools/pictures.py --build toy_scene/scenelabel --scene toy_scene   # reuse a build
 
 The picture is :func:`scenelabel.viz.pictures.write_panels` of the first held-out view, exactly what
-``build`` writes to ``renders/<view>.png`` (scenelabel.train.pipeline.evaluate).
+``build`` writes to ``renders/<view>.png`` (scenelabel.train.evaluation.evaluate).
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ def main() -> None:
 
     from scenelabel import SemanticField, build, preset, write_toy_scene
     from scenelabel.data.io import load_scene
-    from scenelabel.train.pipeline import choose_views, evaluate
+    from scenelabel.train.evaluation import evaluate
+    from scenelabel.train.pipeline import choose_views
 
     with tempfile.TemporaryDirectory() as tmp:
         if args.build is None:

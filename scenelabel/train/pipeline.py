@@ -6,7 +6,7 @@ Orchestration on top of io, train, semantic_field and maps. Writes into the outp
   cameras (what the maps' unknown rule needs)
 - ``config.json``: the resolved config (human-readable copy)
 - ``metrics.json``: held-out ``psnr``, ``ssim``, ``miou``, ``depth_error`` + per-view / per-class details
-- ``renders/<view>.png``: captioned panels of held-out views (:mod:`scenelabel.viz.pictures`)
+- ``renders/<view>.png``: captioned panels of up to 8 held-out views (:mod:`scenelabel.train.evaluation`)
 - ``map.zarr``: the semantic occupancy map
 """
 
@@ -30,18 +30,19 @@ from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
 from scenelabel.config import (
     AUTO,
+    BUILD_SECONDS_WITH_DEPTH,
     DISTORTION_AUTO_WEIGHT,
     DISTORTION_THIN_MAX,
     BuildConfig,
     config_from_dict,
     config_to_dict,
     preset,
-    render_background,
     resolve_for_layout,
+    time_budget_with_depth,
 )
 from scenelabel.data.io import load_scene
 from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
-from scenelabel.data.scene import UNLABELLED_NAME, ClassMap, Scene
+from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
@@ -51,24 +52,14 @@ from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
-from scenelabel.metrics import (
-    confusion_matrix,
-    depth_error,
-    miou,
-    psnr,
-    spurious_classes,
-    ssim,
-    surface_points_from_depth,
-)
+from scenelabel.metrics import surface_points_from_depth
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
-from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.render.sampling import CARVE_MARGIN, DensityGrid, free_cells_from_depth, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
-from scenelabel.train.losses import composite_target
+from scenelabel.train.evaluation import evaluate
 from scenelabel.train.trainer import Trainer, rays_for_views
-from scenelabel.viz.pictures import evaluation_panels, view_title, write_panels
 
 __all__ = ["build", "BuildResult", "split_views", "choose_views", "default_voxel_size", "resume_config"]
 
@@ -150,66 +141,6 @@ def _finest_cell(config: BuildConfig, aabb: np.ndarray) -> float:
 def _class_colors(scene: Scene) -> dict[int, list[int]]:
     colors = scene.info.get("class_colors") or {}
     return {int(k): [int(c) for c in v] for k, v in colors.items()}
-
-
-def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: float | None, renders_dir: Path | None) -> dict:
-    """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class, and
-    each view's render time. A ground-truth image with alpha (``scene.image_alphas``) is composited on the
-    colour the render composites on (:func:`scenelabel.config.render_background`: white after
-    "random" training)."""
-    class_ids = field.class_ids
-    background = render_background(field.config.train.background)
-    background, ignore = None if background is None else np.asarray(background, np.float32), scene.ignore_index
-    conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
-    conf_smooth = np.zeros_like(conf)
-    per_view, depth_errs = [], []
-    colors = field.meta.get("class_colors") or {}
-    for i in test:
-        t0 = time.perf_counter()
-        out = field.render_camera(scene.cameras, i)
-        render_seconds = time.perf_counter() - t0
-        # the smoothing is post-processing of the rendered class probabilities: no second render
-        smooth_ids = field.class_map.ids_from_channels(smooth_class_probs(out.probs, smooth_sigma).argmax(-1))
-        smoothed_label = np.where(out.label >= 0, smooth_ids, out.label)
-        gt = composite_target(scene.images[i], None if scene.image_alphas is None else scene.image_alphas[i], background)
-        view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
-        label = scene.labels[i]
-        if label is not None:
-            conf += confusion_matrix(out.label, label, class_ids, ignore)
-            conf_smooth += confusion_matrix(smoothed_label, label, class_ids, ignore)
-            view["miou"] = miou(confusion_matrix(out.label, label, class_ids, ignore))[0]
-        depth = scene.depths[i]
-        if depth is not None:
-            err = depth_error(out.depth, depth, depth > 0)
-            view["depth_error"] = err
-            depth_errs.append(err)
-        per_view.append(view)
-        if renders_dir is not None:  # captioned panels, a legend of the classes shown, the view's metrics
-            labelled = field.class_map.names != (UNLABELLED_NAME,)  # a build without labels: colour and depth
-            panels = evaluation_panels(gt, out, smoothed_label, label, depth, ignore, labelled)
-            write_panels(renders_dir / f"{scene.names[i]}.png", panels, {**scene.classes, **field.classes}, colors,
-                         view_title(scene.names[i], view), ignore)
-    metrics: dict = {"n_test_views": len(test)}
-    if per_view:
-        metrics["psnr"] = float(np.mean([v["psnr"] for v in per_view]))
-        metrics["ssim"] = float(np.mean([v["ssim"] for v in per_view]))
-    if conf.sum():
-        mean_iou, per_class = miou(conf)
-        metrics["miou"] = float(mean_iou)
-        metrics["miou_smoothed"] = float(miou(conf_smooth)[0])
-        metrics["per_class_iou"] = {
-            str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
-        }
-        metrics["spurious_classes"] = {  # predicted on held-out views that do not show them: not in the mean
-            str(cid): int(n) for cid, n in zip(class_ids.tolist(), spurious_classes(conf)) if n > 0
-        }
-    if depth_errs:
-        metrics["depth_error"] = float(np.mean([e["abs_rel"] for e in depth_errs]))
-        metrics["depth_error_details"] = {
-            k: float(np.mean([e[k] for e in depth_errs])) for k in depth_errs[0]
-        }
-    metrics["per_view"] = per_view
-    return metrics
 
 
 def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
@@ -510,10 +441,31 @@ NO_DEPTH_HINT = (
 """Said before training when the training rays carry no sensor depth."""
 
 
+def _plan_time_budget(trainer: Trainer, static: dict, setup_seconds: float, held_out: Cameras) -> None:
+    """``train.time_budget`` "auto" with sensor depth: what a build of BUILD_SECONDS_WITH_DEPTH leaves
+    after ``setup_seconds`` and the expected evaluation of the ``held_out`` views
+    (:func:`scenelabel.config.time_budget_with_depth`), into the trainer's config and the
+    checkpoint's record (``static``: "config", and "time_plan" with the figures)."""
+    eval_megapixels = float(np.sum(held_out.width * held_out.height)) / 1e6 if len(held_out) else 0.0
+    budget = time_budget_with_depth(setup_seconds, eval_megapixels)
+    budget = float(broadcast_array(np.array([budget]), trainer.device)[0])  # every rank stops with rank 0
+    trainer.config = dataclasses.replace(trainer.config, train=dataclasses.replace(trainer.config.train, time_budget=budget))
+    static["config"] = config_to_dict(trainer.config)
+    static["time_plan"] = {
+        "build_seconds": BUILD_SECONDS_WITH_DEPTH,
+        "setup_seconds": setup_seconds,
+        "eval_megapixels": eval_megapixels,
+        "train_seconds": budget,
+    }
+
+
 def _training_plan(config: BuildConfig, static: dict) -> str:
     """One line said before training: the bounds, and how long training will take at most."""
     tc = config.train
-    limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:g} s, whichever comes first"
+    limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:.3g} s, whichever comes first"
+    if "time_plan" in static:
+        plan = static["time_plan"]
+        limit += f" (a build of {plan['build_seconds']:g} s less {plan['setup_seconds']:.3g} s of setup and the held-out views' evaluation)"
     aabb = np.asarray(static["aabb_world"])
     size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
     distortion = static["distortion"]
@@ -565,6 +517,7 @@ def build(
         BuildResult with the loaded SemanticField and the metrics (other ranks: no field, and
         only the training figures).
     """
+    started = time.perf_counter()  # a build with depth plans its training time from here
     config = config or preset("fast")
     if isinstance(scene_path, Scene):
         scene = scene_path
@@ -593,6 +546,8 @@ def build(
     ckpt_path = out_dir / CHECKPOINT_NAME
     try:
         trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
+        if config.train.time_budget == AUTO and trainer.with_depth:
+            _plan_time_budget(trainer, static, time.perf_counter() - started, scene.cameras[test_idx])
         config = trainer.config  # "auto" settings resolved
 
         def payload(t: Trainer) -> Checkpoint:

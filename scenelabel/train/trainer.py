@@ -515,7 +515,7 @@ class Trainer:
                 if on_checkpoint is not None and self.state.step % tc.checkpoint_every == 0:
                     on_checkpoint(self)
                 if tc.time_budget is not None and self.state.elapsed >= tc.time_budget:
-                    bar.write(f"time budget of {tc.time_budget:g} s reached after {self.state.step} steps")
+                    bar.write(f"time budget of {tc.time_budget:.3g} s reached after {self.state.step} steps")
                     break
             # queries and maps skip space by the grid of the final field, not the lagging average
             self.grid.rebuild(self.model.density)

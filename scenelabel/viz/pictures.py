@@ -3,7 +3,7 @@
 - :func:`evaluation_panels` -> :func:`write_panels`: a held-out view as a row of captioned panels
   (ground truth, rgb, labels, smoothed labels, true labels, depth, true depth, label errors), a
   legend of the classes that appear in the label panels, and the view's metrics in the title.
-  ``build`` writes one per held-out view to ``renders/<view>.png``.
+  ``build`` writes one per held-out view, for up to 8 of them, to ``renders/<view>.png``.
 - :func:`write_floor_plan_picture`: a map's floor plan (:func:`scenelabel.maps.exports.floor_plan`)
   in world coordinates with a legend of the classes present, free and unknown, and a scale bar
   (``scenelabel export MAP OUT --format nav2 --legend`` writes ``OUT_legend.png``). The Nav2

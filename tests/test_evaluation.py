@@ -1,0 +1,29 @@
+"""scenelabel.train.evaluation: which held-out views a build draws, and that every held-out view is
+scored while only those are drawn."""
+
+import numpy as np
+
+from scenelabel import build, preset, write_toy_scene
+from scenelabel.train.evaluation import PANEL_VIEWS, panel_views
+
+
+def test_panel_views_spread_evenly_from_the_first_to_the_last():
+    assert panel_views([3, 5, 9]) == [3, 5, 9]  # no more than PANEL_VIEWS: all of them
+    test = list(range(0, 150, 8))  # dense-5x4's 19 held-out views
+    chosen = panel_views(test)
+    assert len(chosen) == PANEL_VIEWS == len(set(chosen))
+    assert chosen[0] == test[0] and chosen[-1] == test[-1] and chosen == sorted(chosen)
+    gaps = np.diff([test.index(v) for v in chosen])
+    assert gaps.max() - gaps.min() <= 1  # evenly spread
+    assert panel_views(test, 1) == [test[0]] and panel_views(test, 2) == [test[0], test[-1]]
+
+
+def test_a_build_scores_every_held_out_view_and_draws_at_most_panel_views(tmp_path):
+    n_test = PANEL_VIEWS + 2
+    scene = write_toy_scene(tmp_path / "scene", n_train=7 * n_test, n_test=n_test, width=24, height=18)  # every 8th held out
+    config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False}})
+    result = build(scene, tmp_path / "out", config, progress=False)
+    scored = [v["view"] for v in result.metrics["per_view"]]
+    drawn = sorted(p.stem for p in (tmp_path / "out" / "renders").glob("*.png"))
+    assert len(scored) == n_test and len(drawn) == PANEL_VIEWS and set(drawn) <= set(scored)
+    assert scored[0] in drawn and scored[-1] in drawn
