@@ -191,22 +191,16 @@ BUILD_SECONDS_WITH_DEPTH = 88.0
 evaluation's estimate (issue 24's target). Training gets what setup and the expected evaluation
 leave (:func:`time_budget_with_depth`), and stops at STEPS_WITH_DEPTH steps if that comes first."""
 
-EVAL_SECONDS_PER_MEGAPIXEL = 30.0
-"""A build's expected evaluation time per megapixel of held-out views, with depth: rendering,
-metrics and at most ``evaluation.PANEL_VIEWS`` panels, as measured on 2 cores (dense-5x4's 19
-held-out 160x120 views: 8.5 s of renders and 1.8 s of panels for 0.36 megapixels)."""
-
 MIN_TIME_BUDGET = 20.0
 """Training seconds a build with depth keeps however long its setup took (it then runs over)."""
 
 
-def time_budget_with_depth(setup_seconds: float = 0.0, eval_megapixels: float = 0.0) -> float:
+def time_budget_with_depth(setup_seconds: float = 0.0, finish_seconds: float = 0.0) -> float:
     """Training seconds of ``train.time_budget`` "auto" with sensor depth: BUILD_SECONDS_WITH_DEPTH
-    less the seconds the build spent before training and the expected evaluation of
-    ``eval_megapixels`` of held-out views (EVAL_SECONDS_PER_MEGAPIXEL), at least MIN_TIME_BUDGET.
-    A trainer made outside a build has neither: the whole BUILD_SECONDS_WITH_DEPTH."""
-    planned = BUILD_SECONDS_WITH_DEPTH - setup_seconds - EVAL_SECONDS_PER_MEGAPIXEL * eval_megapixels
-    return max(planned, MIN_TIME_BUDGET)
+    less the seconds the build spent before training and the ``finish_seconds`` expected after it
+    (:func:`scenelabel.train.evaluation.expected_finish_seconds`), at least MIN_TIME_BUDGET. A
+    trainer made outside a build has neither: the whole BUILD_SECONDS_WITH_DEPTH."""
+    return max(BUILD_SECONDS_WITH_DEPTH - setup_seconds - finish_seconds, MIN_TIME_BUDGET)
 
 
 def resolve_by_depth(config: BuildConfig, with_depth: bool) -> BuildConfig:

@@ -2,9 +2,18 @@
 scored while only those are drawn."""
 
 import numpy as np
+import pytest
 
 from scenelabel import build, preset, write_toy_scene
-from scenelabel.train.evaluation import PANEL_VIEWS, panel_views
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.train.evaluation import (
+    FINISH_SECONDS,
+    PANEL_SECONDS,
+    PANEL_VIEWS,
+    RENDER_SECONDS_PER_MEGAPIXEL,
+    expected_finish_seconds,
+    panel_views,
+)
 
 
 def test_panel_views_spread_evenly_from_the_first_to_the_last():
@@ -27,3 +36,17 @@ def test_a_build_scores_every_held_out_view_and_draws_at_most_panel_views(tmp_pa
     drawn = sorted(p.stem for p in (tmp_path / "out" / "renders").glob("*.png"))
     assert len(scored) == n_test and len(drawn) == PANEL_VIEWS and set(drawn) <= set(scored)
     assert scored[0] in drawn and scored[-1] in drawn
+
+
+def _cameras(n: int, width: int, height: int) -> Cameras:
+    return Cameras.create(np.tile(np.eye(4), (n, 1, 1)), 100.0, 100.0, width / 2, height / 2, width, height)
+
+
+def test_expected_finish_seconds_count_the_pixels_rendered_and_the_panels_drawn():
+    assert expected_finish_seconds(_cameras(0, 160, 120), True) == FINISH_SECONDS  # nothing held out
+    three = expected_finish_seconds(_cameras(3, 160, 120), True)
+    assert three == pytest.approx(FINISH_SECONDS + 3 * (RENDER_SECONDS_PER_MEGAPIXEL * 0.0192 + PANEL_SECONDS))
+    assert expected_finish_seconds(_cameras(3, 160, 120), False) == pytest.approx(three - 3 * PANEL_SECONDS)
+    many = expected_finish_seconds(_cameras(19, 160, 120), True)  # every view rendered, PANEL_VIEWS drawn
+    assert many == pytest.approx(FINISH_SECONDS + 19 * RENDER_SECONDS_PER_MEGAPIXEL * 0.0192 + PANEL_VIEWS * PANEL_SECONDS)
+    assert expected_finish_seconds(_cameras(1, 640, 480), False) == pytest.approx(FINISH_SECONDS + RENDER_SECONDS_PER_MEGAPIXEL * 0.3072)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scenelabel import load_scene, write_furnished_room, write_toy_scene
-from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
 from scenelabel.data.synthetic.scenes import ROOM_HALF, ROOM_HEIGHT
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -222,7 +222,8 @@ def test_depth_from_layout_by_hand():
 def test_with_layout_depth_uses_the_training_views_alone(room):
     train = [i for i in range(len(room)) if i % 8]
     scene, layout = with_layout_depth(room, train)
-    assert layout is not None and "room layout" in scene.info[DEPTH_SOURCE_KEY]
+    assert layout is not None and scene.info[DEPTH_SOURCE_KEY] == LAYOUT_SOURCE
+    assert scene.info[LAYOUT_KEY].startswith(f"floor at {layout.floor:.3f}")
     assert all(scene.sensor_depths[i] is None for i in range(len(room)) if i % 8 == 0)  # held out: none
     assert all(np.isfinite(scene.sensor_depths[i]).mean() > 0.5 for i in train)
     # held-out masks do not move the layout: changing them changes nothing

@@ -401,35 +401,31 @@ def test_auto_grid_decay_steps_and_budget_follow_sensor_depth(scene):
 
 
 def test_the_time_budget_with_depth_is_what_the_build_leaves_after_setup_and_evaluation():
-    from scenelabel.config import (
-        BUILD_SECONDS_WITH_DEPTH,
-        EVAL_SECONDS_PER_MEGAPIXEL,
-        MIN_TIME_BUDGET,
-        time_budget_with_depth,
-    )
+    from scenelabel.config import BUILD_SECONDS_WITH_DEPTH, MIN_TIME_BUDGET, time_budget_with_depth
 
     assert time_budget_with_depth() == BUILD_SECONDS_WITH_DEPTH
-    assert time_budget_with_depth(7.0, 0.5) == pytest.approx(BUILD_SECONDS_WITH_DEPTH - 7.0 - 0.5 * EVAL_SECONDS_PER_MEGAPIXEL)
+    assert time_budget_with_depth(7.0, 5.5) == pytest.approx(BUILD_SECONDS_WITH_DEPTH - 12.5)
     assert time_budget_with_depth(10 * BUILD_SECONDS_WITH_DEPTH, 1.0) == MIN_TIME_BUDGET  # a long setup still trains
 
 
 def test_a_build_with_depth_plans_its_training_time_from_its_setup_and_held_out_views(scene, tmp_path):
     """train.time_budget "auto" with sensor depth: the checkpoint records the plan (the build's
-    seconds, the setup it measured, the held-out views' megapixels) and trains with what they leave;
-    a number given is kept and no plan is made."""
+    seconds, the setup it measured, what it expects after training) and trains with what they
+    leave; a number given is kept and no plan is made."""
     from scenelabel.config import BUILD_SECONDS_WITH_DEPTH, time_budget_with_depth
+    from scenelabel.train.evaluation import expected_finish_seconds
     from scenelabel.train.pipeline import choose_views
 
     loaded = _with_sensor_depth(load_scene(scene))
     _, test, _ = choose_views(loaded, 8)
-    megapixels = sum(int(loaded.cameras.width[i]) * int(loaded.cameras.height[i]) for i in test) / 1e6
     output = {"write_map": False, "write_renders": False}
     result = build(loaded, tmp_path / "auto", preset("quick", {"train": {"steps": 2, "time_budget": "auto"}, "output": output}),
                    progress=False)
     plan = result.field.meta["time_plan"]
-    assert plan["build_seconds"] == BUILD_SECONDS_WITH_DEPTH and plan["eval_megapixels"] == pytest.approx(megapixels)
+    assert plan["build_seconds"] == BUILD_SECONDS_WITH_DEPTH
+    assert plan["finish_seconds"] == pytest.approx(expected_finish_seconds(loaded.cameras[test], False))
     assert 0 < plan["setup_seconds"] < BUILD_SECONDS_WITH_DEPTH
-    assert plan["train_seconds"] == pytest.approx(time_budget_with_depth(plan["setup_seconds"], megapixels))
+    assert plan["train_seconds"] == pytest.approx(time_budget_with_depth(plan["setup_seconds"], plan["finish_seconds"]))
     assert result.field.config.train.time_budget == plan["train_seconds"]  # what training read, saved
     given = build(loaded, tmp_path / "given", preset("quick", {"train": {"steps": 2, "time_budget": 30.0}, "output": output}),
                   progress=False)

@@ -241,6 +241,8 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "thinly_seen": ckpt["distortion"]["thinly_seen"],
         "carved_by_depth": ckpt.get("carved_by_depth"),
         "distortion_weight": ckpt["distortion"]["weight"],
+        "time_plan": ckpt.get("time_plan"),
+        "eval_seconds": m["eval_seconds"],
         **three_d_metrics(result.field, scene, test_idx, geometry.boxes),
     })
 
@@ -313,6 +315,24 @@ DEPTH_TARGETS = (
     ("surface-point labels: field >= 95 %", lambda r: r["surface_field"] >= 0.95),
     ("F-score at 5 cm >= 0.95", lambda r: r["fscore"] >= 0.95),
 )
+
+
+def _time_plans(rows: list[dict]) -> list[str]:
+    """The planned training time of the builds that planned it (``train.time_budget`` "auto" with
+    depth, checkpoint ``time_plan``) against what the build took: after training is the build's time
+    less its setup and training (evaluation, checkpoint, field loading)."""
+    planned = [r for r in rows if r.get("time_plan")]
+    if not planned:
+        return []
+    lines = ["## Time plans (`train.time_budget` \"auto\" with depth)", "",
+             "| room | variant | setup s | training planned s | trained s (steps) | after training: expected / took s | build s |",
+             "|---|---|---|---|---|---|---|"]
+    for r in planned:
+        plan = r["time_plan"]
+        after = r["build_seconds"] - plan["setup_seconds"] - r["train_seconds"]
+        lines.append(f"| {r['scene']} | {r['variant']} | {plan['setup_seconds']:.1f} | {plan['train_seconds']:.1f} | "
+                     f"{r['train_seconds']:.1f} ({r['steps']}) | {plan['finish_seconds']:.1f} / {after:.1f} | {r['build_seconds']:.1f} |")
+    return lines + [""]
 
 
 def _depth_targets(rows: list[dict]) -> list[str]:
@@ -439,6 +459,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
+    lines += _time_plans(rows)
     lines += _seed_spread(rows)
     lines += ["Bounds chosen per room: " + "; ".join(sorted({r["aabb_source"].split(" (")[0] for r in rows})) + ".", ""]
     lines += _per_class(rows)

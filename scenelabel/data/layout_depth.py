@@ -12,10 +12,16 @@ import numpy as np
 from scenelabel.data.scene import Scene
 from scenelabel.geometry.layout import MIN_ON_WALLS, RoomLayout, depth_from_layout, layout_class_ids, room_layout
 
-__all__ = ["DEPTH_SOURCE_KEY", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
+__all__ = ["DEPTH_SOURCE_KEY", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
 
 DEPTH_SOURCE_KEY = "depth_source"
 """``Scene.info`` key naming where ``sensor_depths`` came from when no sensor measured them."""
+
+LAYOUT_SOURCE = "room layout from the masks"
+"""``info[DEPTH_SOURCE_KEY]`` of depth from the room's layout."""
+
+LAYOUT_KEY = "layout"
+"""``Scene.info`` key of the layout's one-line summary and the share of training pixels it covers."""
 
 MIN_LAYOUT_SHARE = 0.05
 """The layout is used only when its depth covers at least this share of the training pixels."""
@@ -33,7 +39,7 @@ def layout_summary(layout: RoomLayout) -> str:
 def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout | None]:
     """``scene`` with the depth of its room layout, found from the masks of the ``train`` views
     alone, as ``sensor_depths`` of those views (NaN on pixels of other classes; held-out views have
-    none) and ``info[DEPTH_SOURCE_KEY]`` saying so.
+    none), ``info[DEPTH_SOURCE_KEY]`` saying so and ``info[LAYOUT_KEY]`` summing the layout up.
 
     Unchanged (layout None) when the scene has sensor depth, its classes name no floor and wall,
     the masks show no floor-wall boundary, the layout puts less than
@@ -58,5 +64,6 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
         total += depth.size
     if total == 0 or covered < MIN_LAYOUT_SHARE * total:
         return scene, None
-    source = f"room layout from the masks: {layout_summary(layout)}; {100.0 * covered / total:.0f} % of training pixels"
-    return dataclasses.replace(scene, sensor_depths=depths, info={**scene.info, DEPTH_SOURCE_KEY: source}), layout
+    summary = f"{layout_summary(layout)}; {100.0 * covered / total:.0f} % of training pixels"
+    info = {**scene.info, DEPTH_SOURCE_KEY: LAYOUT_SOURCE, LAYOUT_KEY: summary}
+    return dataclasses.replace(scene, sensor_depths=depths, info=info), layout

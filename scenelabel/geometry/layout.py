@@ -246,8 +246,12 @@ def _cut_agreements(
     true height and up, which counts far more points per bin than 2D bins). Bins scale with the
     plane's distance from the rays' mean height / 1.5."""
     sizes = bin_size * np.maximum(np.abs(float((rays[0] @ up).mean()) - heights), 1e-6) / 1.5
-    basis = _horizontal(up, _world_axis_across(up) if walls is None else walls)
-    return _agreement(*_cut_cells(rays, up, heights, sizes, basis), walls is not None)
+    return _agreement(*_cut_cells(rays, up, heights, sizes, _cut_basis(up, walls)), walls is not None)
+
+
+def _cut_basis(up: np.ndarray, walls: np.ndarray | None) -> np.ndarray:
+    """[2, 3] the axes the cuts are binned along: normal to ``up``, one along ``walls`` when given."""
+    return _horizontal(up, _world_axis_across(up) if walls is None else walls)
 
 
 def plane_offset(
@@ -273,13 +277,11 @@ def plane_offset(
         raise InputError("no boundary rays to find a plane from", field="origins")
     if near is None:
         heights = origins @ up
-        if below:
-            coarse = np.arange(heights.min() - SEARCH_SPAN, heights.min() - 0.3, 0.05)
-        else:
-            coarse = np.arange(heights.max() + 0.3, heights.max() + SEARCH_SPAN, 0.05)
-    elif reach > 0.05:
-        coarse = np.arange(near - reach, near + reach + 1e-9, 0.05)
-    if near is None or reach > 0.05:
+        lo, hi = (heights.min() - SEARCH_SPAN, heights.min() - 0.3) if below else (heights.max() + 0.3, heights.max() + SEARCH_SPAN)
+        coarse = np.arange(lo, hi, 0.05)
+    else:
+        coarse = np.arange(near - reach, near + reach + 1e-9, 0.05) if reach > 0.05 else np.array([near])
+    if len(coarse) > 1:
         near = float(coarse[int(np.argmax(_cut_agreements((origins, directions), up, coarse, BIN, walls)))])
     for span, step in ((0.05, 0.01), (0.01, 0.002)):
         fine = np.arange(near - span, near + span + 1e-9, step)
@@ -354,7 +356,7 @@ def _joint_agreement(
     """How well the floor rays' cuts at ``heights[0]`` and the ceiling rays' at ``heights[1]``
     agree together (:func:`_agreement` in :data:`BIN` bins of the plane normal to ``up``, or, given
     the walls' direction, along its two axes)."""
-    basis = _horizontal(up, _world_axis_across(up) if walls is None else walls)
+    basis = _cut_basis(up, walls)
     parts = [_cut_cells(rays, up, np.array([h]), np.array([BIN]), basis)
              for rays, h in zip((floor_rays, ceiling_rays), heights)]
     cells, valid = (np.concatenate([p[k] for p in parts], axis=1) for k in (0, 1))

@@ -10,17 +10,35 @@ import numpy as np
 
 from scenelabel.config import render_background
 from scenelabel.data.scene import UNLABELLED_NAME, Scene
+from scenelabel.geometry.cameras import Cameras
 from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, spurious_classes, ssim
 from scenelabel.query.field import SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.train.losses import composite_target
 from scenelabel.viz.pictures import evaluation_panels, view_title, write_panels
 
-__all__ = ["evaluate", "panel_views", "PANEL_VIEWS"]
+__all__ = ["evaluate", "expected_finish_seconds", "panel_views", "PANEL_VIEWS"]
 
 PANEL_VIEWS = 8
 """A build draws the panels of at most this many held-out views, spread evenly over them: the
 pictures are for looking, and drawing one takes about as long as rendering it."""
+
+# What a build does after training, as measured on 2 cores with phone depth (the suite's 160x120
+# rooms, tools/bench_suite.py; docs/captures.md): a held-out view renders in 0.36-0.6 s and its
+# panels take about 0.3 s to draw; saving the checkpoint, loading the field and importing the
+# pictures' libraries take a second or two whatever the views.
+FINISH_SECONDS = 2.0
+RENDER_SECONDS_PER_MEGAPIXEL = 26.0
+PANEL_SECONDS = 0.3
+
+
+def expected_finish_seconds(held_out: Cameras, with_panels: bool) -> float:
+    """Seconds a build is expected to take after training: FINISH_SECONDS, rendering and scoring
+    the ``held_out`` views (RENDER_SECONDS_PER_MEGAPIXEL) and, ``with_panels``, drawing the
+    :func:`panel_views` of them (PANEL_SECONDS each)."""
+    megapixels = float(np.sum(held_out.width.astype(np.float64) * held_out.height)) / 1e6
+    n_panels = len(panel_views(list(range(len(held_out))))) if with_panels else 0
+    return FINISH_SECONDS + RENDER_SECONDS_PER_MEGAPIXEL * megapixels + PANEL_SECONDS * n_panels
 
 
 def panel_views(test: list[int], n: int = PANEL_VIEWS) -> list[int]:

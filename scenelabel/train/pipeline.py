@@ -41,7 +41,7 @@ from scenelabel.config import (
     time_budget_with_depth,
 )
 from scenelabel.data.io import load_scene
-from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, with_layout_depth
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, with_layout_depth
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
@@ -58,7 +58,7 @@ from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.render.sampling import CARVE_MARGIN, DensityGrid, free_cells_from_depth, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
-from scenelabel.train.evaluation import evaluate
+from scenelabel.train.evaluation import evaluate, expected_finish_seconds
 from scenelabel.train.trainer import Trainer, rays_for_views
 
 __all__ = ["build", "BuildResult", "split_views", "choose_views", "default_voxel_size", "resume_config"]
@@ -365,7 +365,7 @@ def prepare_training(
 
     train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
     class_map = _class_map(scene, train_idx)
-    points, seen_by, thinly_seen = None, scene.info.get(DEPTH_SOURCE_KEY, "sensor depth").split(":")[0], None
+    points, seen_by, thinly_seen = None, scene.info.get(DEPTH_SOURCE_KEY, "sensor depth"), None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
         points = sensor_depth_points(scene, train_idx)
         if points is None:  # no training view has sensor depth
@@ -441,20 +441,19 @@ NO_DEPTH_HINT = (
 """Said before training when the training rays carry no sensor depth."""
 
 
-def _plan_time_budget(trainer: Trainer, static: dict, setup_seconds: float, held_out: Cameras) -> None:
+def _plan_time_budget(trainer: Trainer, static: dict, setup_seconds: float, finish_seconds: float) -> None:
     """``train.time_budget`` "auto" with sensor depth: what a build of BUILD_SECONDS_WITH_DEPTH leaves
-    after ``setup_seconds`` and the expected evaluation of the ``held_out`` views
+    after ``setup_seconds`` and the ``finish_seconds`` expected after training
     (:func:`scenelabel.config.time_budget_with_depth`), into the trainer's config and the
     checkpoint's record (``static``: "config", and "time_plan" with the figures)."""
-    eval_megapixels = float(np.sum(held_out.width * held_out.height)) / 1e6 if len(held_out) else 0.0
-    budget = time_budget_with_depth(setup_seconds, eval_megapixels)
+    budget = time_budget_with_depth(setup_seconds, finish_seconds)
     budget = float(broadcast_array(np.array([budget]), trainer.device)[0])  # every rank stops with rank 0
     trainer.config = dataclasses.replace(trainer.config, train=dataclasses.replace(trainer.config.train, time_budget=budget))
     static["config"] = config_to_dict(trainer.config)
     static["time_plan"] = {
         "build_seconds": BUILD_SECONDS_WITH_DEPTH,
         "setup_seconds": setup_seconds,
-        "eval_megapixels": eval_megapixels,
+        "finish_seconds": finish_seconds,
         "train_seconds": budget,
     }
 
@@ -465,7 +464,7 @@ def _training_plan(config: BuildConfig, static: dict) -> str:
     limit = f"{tc.steps} steps" if tc.time_budget is None else f"at most {tc.steps} steps or {tc.time_budget:.3g} s, whichever comes first"
     if "time_plan" in static:
         plan = static["time_plan"]
-        limit += f" (a build of {plan['build_seconds']:g} s less {plan['setup_seconds']:.3g} s of setup and the held-out views' evaluation)"
+        limit += f" (a build of {plan['build_seconds']:g} s less {plan['setup_seconds']:.3g} s of setup and {plan['finish_seconds']:.3g} s expected after training)"
     aabb = np.asarray(static["aabb_world"])
     size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
     distortion = static["distortion"]
@@ -533,7 +532,7 @@ def build(
         if layout is not None:
             config = resolve_for_layout(config)
             if progress:
-                print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}", file=sys.stderr)
+                print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -547,7 +546,8 @@ def build(
     try:
         trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
         if config.train.time_budget == AUTO and trainer.with_depth:
-            _plan_time_budget(trainer, static, time.perf_counter() - started, scene.cameras[test_idx])
+            finish = expected_finish_seconds(scene.cameras[test_idx], config.output.write_renders)
+            _plan_time_budget(trainer, static, time.perf_counter() - started, finish)
         config = trainer.config  # "auto" settings resolved
 
         def payload(t: Trainer) -> Checkpoint:

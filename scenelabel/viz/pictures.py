@@ -320,16 +320,17 @@ def _depth_colors(panel: Panel):
     return cmap, Normalize(vmin, vmax)
 
 
-def _display(panel: Panel, colors: Mapping[int, tuple[int, int, int]], size: tuple[int, int]) -> np.ndarray:
+def _display(panel: Panel, colors: Mapping[int, tuple[int, int, int]], size: tuple[int, int], depth_colors=None) -> np.ndarray:
     """[h, w, 3] uint8: the pixels ``panel`` shows at ``size`` (w, h): class colours, the depth
-    colour map, or the photo; enlarged by repeating pixels, shrunk by averaging (PIL's box filter)."""
+    colour map (``depth_colors``: :func:`_depth_colors` of the panel), or the photo; enlarged by
+    repeating pixels, shrunk by averaging (PIL's box filter)."""
     from PIL import Image
 
     image = np.asarray(panel.image)
     if panel.kind == "labels":
         rgb = _label_rgb(image, colors)
     elif panel.kind == "depth":
-        cmap, norm = _depth_colors(panel)
+        cmap, norm = depth_colors
         rgb = cmap(norm(np.ma.masked_invalid(image.astype(np.float64))), bytes=True)[..., :3]
     elif image.dtype != np.uint8:
         rgb = np.round(np.clip(image.astype(np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
@@ -387,12 +388,12 @@ def panel_figure(
         x = GAP + n * (layout.panel_width + GAP)
         fig.text((x + layout.panel_width / 2) / W, 1.0 - (TITLE_HEIGHT + CAPTION_HEIGHT / 2) / H, panel.caption,
                  ha="center", va="center", fontsize=9)
-        strip[:, x:x + layout.panel_width] = _display(panel, colors, (layout.panel_width, layout.panel_height))
-        if panel.kind == "depth":  # its colour bar, below it
+        depth_colors = _depth_colors(panel) if panel.kind == "depth" else None
+        strip[:, x:x + layout.panel_width] = _display(panel, colors, (layout.panel_width, layout.panel_height), depth_colors)
+        if depth_colors is not None:  # its colour bar, below it
             bar = fig.add_axes(box(x + 0.1 * layout.panel_width, top + layout.panel_height + GAP / 2,
                                    0.8 * layout.panel_width, 8), label=f"colour bar: {panel.caption}")
-            cmap, norm = _depth_colors(panel)
-            fig.colorbar(ScalarMappable(norm, cmap), cax=bar, orientation="horizontal")
+            fig.colorbar(ScalarMappable(depth_colors[1], depth_colors[0]), cax=bar, orientation="horizontal")
             bar.tick_params(labelsize=7, length=2, pad=1)
     fig.figimage(strip, xo=0, yo=H - top - layout.panel_height, origin="upper")
     legend_top = top + layout.panel_height + GAP + layout.colorbar_height
