@@ -47,7 +47,8 @@ class DataConfig:
     video_max_frames: int = 150
     # without sensor depth: the floor, wall and ceiling pixels of the training views get the depth of
     # the room's layout, found where their masks meet (scenelabel.data.layout_depth), and the build
-    # trains on it as on sensor depth. Only where the classes name a floor and walls
+    # trains on it as on sensor depth; with sensor depth, the layout fills the sensor's holes on
+    # those pixels (a far wall beyond a phone's range). Only where the classes name a floor and walls
     layout_depth: bool = True
 
     def __post_init__(self) -> None:

@@ -6,9 +6,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.ndimage import binary_erosion
 
 from scenelabel import load_scene, write_furnished_room, write_toy_scene
-from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, FILL_MARGIN, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
 from scenelabel.data.synthetic.scenes import ROOM_HALF, ROOM_HEIGHT
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -219,6 +220,33 @@ def test_depth_from_layout_by_hand():
     assert np.isnan(depth_from_layout(no_walls, cams, 0, label, IDS)[1, 1])
 
 
+def test_with_sensor_depth_the_layout_fills_its_holes_on_floor_wall_and_ceiling_pixels(room):
+    """A sensor that reads nothing beyond 4 m (and a training view it missed): the layout gives
+    those floor, wall and ceiling pixels their depth; measured pixels, furniture's holes and the
+    held-out views stay as they were, and the depth source stays the sensor."""
+    train = [i for i in range(len(room)) if i % 8]
+    sensor = [np.where(d < 4.0, d, np.nan).astype(np.float32) for d in room.depths]
+    sensor[train[0]] = None
+    scene, layout = with_layout_depth(dataclasses.replace(room, sensor_depths=sensor), train)
+    assert layout is not None and DEPTH_SOURCE_KEY not in scene.info and "fills" in scene.info[LAYOUT_KEY]
+    planes = np.isin(np.stack(room.labels), list(IDS.values()))  # floor, wall, ceiling pixels
+    for i in range(len(room)):
+        if i % 8 == 0:
+            np.testing.assert_array_equal(scene.sensor_depths[i], sensor[i])  # held out: untouched
+            continue
+        got, true = scene.sensor_depths[i], room.depths[i]
+        measured = np.zeros(true.shape, bool) if sensor[i] is None else np.isfinite(sensor[i])
+        if sensor[i] is not None:
+            np.testing.assert_array_equal(got[measured], sensor[i][measured])
+        assert np.isnan(got[~measured & ~planes[i]]).all()  # furniture's holes stay holes
+        near_other = ~binary_erosion(planes[i], iterations=FILL_MARGIN, border_value=1)
+        assert np.isnan(got[~measured & near_other]).all()  # and so do those beside furniture
+        filled = ~measured & planes[i] & np.isfinite(got)
+        assert filled.mean() > 0.5 * (~measured & planes[i]).mean()
+        assert np.median(np.abs(got[filled] - true[filled]) / true[filled]) < 0.01
+    assert np.isfinite(scene.sensor_depths[train[0]]).any()  # the view the sensor missed
+
+
 def test_with_layout_depth_uses_the_training_views_alone(room):
     train = [i for i in range(len(room)) if i % 8]
     scene, layout = with_layout_depth(room, train)
@@ -233,11 +261,11 @@ def test_with_layout_depth_uses_the_training_views_alone(room):
     np.testing.assert_array_equal(again.up, layout.up)
 
 
-def test_without_floor_and_walls_or_with_sensor_depth_the_scene_is_unchanged(room, tmp_path):
+def test_without_floor_and_walls_or_with_complete_sensor_depth_the_scene_is_unchanged(room, tmp_path):
     toy = load_scene(write_toy_scene(tmp_path / "toy", n_train=7, n_test=1, width=24, height=18))  # no walls
     same, layout = with_layout_depth(toy, list(range(len(toy))))
     assert same is toy and layout is None
-    measured = dataclasses.replace(room, sensor_depths=list(room.depths))
+    measured = dataclasses.replace(room, sensor_depths=list(room.depths))  # no hole to fill
     assert with_layout_depth(measured, list(range(len(room))))[1] is None
     blank = dataclasses.replace(room, labels=[np.full_like(lab, 6) for lab in room.labels])  # no boundary anywhere
     assert with_layout_depth(blank, list(range(len(room))))[1] is None

@@ -8,11 +8,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.ndimage import binary_erosion
 
 from scenelabel.data.scene import Scene
 from scenelabel.geometry.layout import MIN_ON_WALLS, RoomLayout, depth_from_layout, layout_class_ids, room_layout
 
-__all__ = ["DEPTH_SOURCE_KEY", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
+__all__ = ["DEPTH_SOURCE_KEY", "FILL_MARGIN", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
 
 DEPTH_SOURCE_KEY = "depth_source"
 """``Scene.info`` key naming where ``sensor_depths`` came from when no sensor measured them."""
@@ -22,6 +23,12 @@ LAYOUT_SOURCE = "room layout from the masks"
 
 LAYOUT_KEY = "layout"
 """``Scene.info`` key of the layout's one-line summary and the share of training pixels it covers."""
+
+FILL_MARGIN = 4
+"""With sensor depth, the layout fills no hole within this many pixels of a pixel of another class:
+a sensor's holes at depth edges are there because a furniture edge's depth is uncertain (a
+quarter-resolution depth image's hole is 4 colour pixels wide), and the masks' edges are the
+least sure too; filling them with the wall behind would carve the furniture's edge."""
 
 MIN_LAYOUT_SHARE = 0.05
 """The layout is used only when its depth covers at least this share of the training pixels."""
@@ -38,32 +45,53 @@ def layout_summary(layout: RoomLayout) -> str:
 
 def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout | None]:
     """``scene`` with the depth of its room layout, found from the masks of the ``train`` views
-    alone, as ``sensor_depths`` of those views (NaN on pixels of other classes; held-out views have
-    none), ``info[DEPTH_SOURCE_KEY]`` saying so and ``info[LAYOUT_KEY]`` summing the layout up.
+    alone, on the floor, wall and ceiling pixels of those views (held-out views get none).
 
-    Unchanged (layout None) when the scene has sensor depth, its classes name no floor and wall,
-    the masks show no floor-wall boundary, the layout puts less than
-    :data:`~scenelabel.geometry.layout.MIN_ON_WALLS` of the boundaries on its walls (the room is
-    not what it says), or its depth covers less than MIN_LAYOUT_SHARE of the training pixels.
+    Without sensor depth the layout's depth becomes ``sensor_depths`` (NaN on pixels of other
+    classes), ``info[DEPTH_SOURCE_KEY]`` says so and ``info[LAYOUT_KEY]`` sums the layout up. With
+    sensor depth it fills the sensor's holes only (NaN pixels: beyond its range, dark surfaces; a
+    training view without any depth), at least FILL_MARGIN pixels from any other class, so that a
+    far wall a phone's LiDAR does not reach still has a surface; ``info[LAYOUT_KEY]`` then says
+    how much it filled.
+
+    Unchanged (layout None) when its classes name no floor and wall, the masks show no floor-wall
+    boundary, the layout puts less than :data:`~scenelabel.geometry.layout.MIN_ON_WALLS` of the
+    boundaries on its walls (the room is not what it says), or it would give depth to less than
+    MIN_LAYOUT_SHARE of the training pixels (with sensor depth: none).
     """
     ids = layout_class_ids(scene.classes)
-    if scene.sensor_depths is not None or "floor" not in ids or "wall" not in ids:
+    if "floor" not in ids or "wall" not in ids:
         return scene, None
     cameras = scene.cameras[train]
     layout = room_layout(cameras, [scene.labels[i] for i in train], ids)
     if layout is None or layout.on_walls < MIN_ON_WALLS:
         return scene, None
-    depths: list[np.ndarray | None] = [None] * len(scene)
-    covered = total = 0
+    sensor = scene.sensor_depths
+    depths: list[np.ndarray | None] = [None] * len(scene) if sensor is None else list(sensor)
+    given = covered = total = 0
     for n, i in enumerate(train):
         if scene.labels[i] is None:
             continue
         depth = depth_from_layout(layout, cameras, n, scene.labels[i], ids).astype(np.float32)
-        depths[i] = depth
-        covered += int(np.isfinite(depth).sum())
         total += depth.size
-    if total == 0 or covered < MIN_LAYOUT_SHARE * total:
-        return scene, None
-    summary = f"{layout_summary(layout)}; {100.0 * covered / total:.0f} % of training pixels"
-    info = {**scene.info, DEPTH_SOURCE_KEY: LAYOUT_SOURCE, LAYOUT_KEY: summary}
+        if sensor is None:
+            depths[i] = depth
+            given += int(np.isfinite(depth).sum())
+        else:  # a view the sensor missed is all holes
+            measured = np.full(depth.shape, np.nan, np.float32) if sensor[i] is None else sensor[i]
+            fill = np.isnan(measured) & binary_erosion(np.isfinite(depth), iterations=FILL_MARGIN, border_value=1)
+            depths[i] = np.where(fill, depth, measured).astype(measured.dtype)
+            given += int(fill.sum())
+        covered += int(np.isfinite(depths[i]).sum())
+    if sensor is None:
+        if total == 0 or covered < MIN_LAYOUT_SHARE * total:
+            return scene, None
+        summary = f"{layout_summary(layout)}; {100.0 * covered / total:.0f} % of training pixels"
+        info = {**scene.info, DEPTH_SOURCE_KEY: LAYOUT_SOURCE, LAYOUT_KEY: summary}
+    else:
+        if given == 0:
+            return scene, None
+        summary = (f"{layout_summary(layout)}; fills {100.0 * given / total:.1f} % of training pixels "
+                   f"where the sensor gave no depth ({100.0 * covered / total:.0f} % now have depth)")
+        info = {**scene.info, LAYOUT_KEY: summary}
     return dataclasses.replace(scene, sensor_depths=depths, info=info), layout

@@ -527,12 +527,13 @@ def build(
         scene = scene.scaled(config.data.scale)
     elif scene.sensor_depths is not None:
         scene = scaled_to_sensor_depth(scene, progress)
-    if scene.sensor_depths is None and config.data.layout_depth:
+    if config.data.layout_depth:  # the room's layout: the depth of a capture without, the holes of one with
+        sensed = scene.sensor_depths is not None
         scene, layout = with_layout_depth(scene, choose_views(scene, config.train.holdout)[0])
         if layout is not None:
-            config = resolve_for_layout(config)
+            config = config if sensed else resolve_for_layout(config)
             if progress:
-                print(f"layout: {scene.info[DEPTH_SOURCE_KEY]}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
+                print(f"layout: {scene.info.get(DEPTH_SOURCE_KEY, 'sensor depth')}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
