@@ -221,11 +221,13 @@ def test_depth_from_layout_by_hand():
 
 
 def test_with_sensor_depth_the_layout_fills_its_holes_on_floor_wall_and_ceiling_pixels(room):
-    """A sensor that reads nothing beyond 4 m (and a training view it missed): the layout gives
-    those floor, wall and ceiling pixels their depth; measured pixels, furniture's holes and the
-    held-out views stay as they were, and the depth source stays the sensor."""
+    """A sensor that reads nothing beyond 4 m and misses some pixels within it (and a training view
+    it missed): the layout gives the floor, wall and ceiling pixels beyond its reach their depth;
+    measured pixels, holes within its reach, furniture's holes and the held-out views stay as they
+    were, and the depth source stays the sensor."""
     train = [i for i in range(len(room)) if i % 8]
-    sensor = [np.where(d < 4.0, d, np.nan).astype(np.float32) for d in room.depths]
+    rng = np.random.default_rng(0)
+    sensor = [np.where((d < 4.0) & (rng.random(d.shape) > 0.1), d, np.nan).astype(np.float32) for d in room.depths]
     sensor[train[0]] = None
     scene, layout = with_layout_depth(dataclasses.replace(room, sensor_depths=sensor), train)
     assert layout is not None and DEPTH_SOURCE_KEY not in scene.info and "fills" in scene.info[LAYOUT_KEY]
@@ -241,8 +243,10 @@ def test_with_sensor_depth_the_layout_fills_its_holes_on_floor_wall_and_ceiling_
         assert np.isnan(got[~measured & ~planes[i]]).all()  # furniture's holes stay holes
         near_other = ~binary_erosion(planes[i], iterations=FILL_MARGIN, border_value=1)
         assert np.isnan(got[~measured & near_other]).all()  # and so do those beside furniture
+        if sensor[i] is not None:  # holes within the sensor's reach stay holes
+            assert np.isnan(got[~measured & (true < np.nanmax(sensor[i]) - 0.01)]).all()
         filled = ~measured & planes[i] & np.isfinite(got)
-        assert filled.mean() > 0.5 * (~measured & planes[i]).mean()
+        assert filled.mean() > 0.5 * (planes[i] & (true > 4.0)).mean()  # most of what lies beyond its reach
         assert np.median(np.abs(got[filled] - true[filled]) / true[filled]) < 0.01
     assert np.isfinite(scene.sensor_depths[train[0]]).any()  # the view the sensor missed
 

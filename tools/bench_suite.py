@@ -64,6 +64,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-planes-256": {"capture": "phone-depth", "field": {"resolutions": [64, 256]}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
+    "phone-depth-no-fill": {"capture": "phone-depth", "data": {"layout_depth": False}},
     "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
     "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 1.0, "depth_ray_end": 2.0}},
 }
@@ -88,6 +89,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-distortion-0.01": "with the distortion term at 0.01",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
+    "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }

@@ -49,10 +49,12 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
 
     Without sensor depth the layout's depth becomes ``sensor_depths`` (NaN on pixels of other
     classes), ``info[DEPTH_SOURCE_KEY]`` says so and ``info[LAYOUT_KEY]`` sums the layout up. With
-    sensor depth it fills the sensor's holes only (NaN pixels: beyond its range, dark surfaces; a
-    training view without any depth), at least FILL_MARGIN pixels from any other class, so that a
-    far wall a phone's LiDAR does not reach still has a surface; ``info[LAYOUT_KEY]`` then says
-    how much it filled.
+    sensor depth it fills the holes the sensor's range left: NaN pixels whose layout depth lies
+    beyond the farthest depth the sensor gave in that view (a training view without any depth: all
+    of them), at least FILL_MARGIN pixels from any other class, so that a far wall a phone's LiDAR
+    does not reach still has a surface; ``info[LAYOUT_KEY]`` then says how much it filled. Holes
+    within the sensor's reach (dark surfaces, edges) stay holes: filling those too made one room's
+    build collapse in two runs of three (docs/captures.md).
 
     Unchanged (layout None) when its classes name no floor and wall, the masks show no floor-wall
     boundary, the layout puts less than :data:`~scenelabel.geometry.layout.MIN_ON_WALLS` of the
@@ -68,7 +70,7 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
         return scene, None
     sensor = scene.sensor_depths
     depths: list[np.ndarray | None] = [None] * len(scene) if sensor is None else list(sensor)
-    given = covered = total = 0
+    filled = covered = total = 0
     for n, i in enumerate(train):
         if scene.labels[i] is None:
             continue
@@ -76,12 +78,12 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
         total += depth.size
         if sensor is None:
             depths[i] = depth
-            given += int(np.isfinite(depth).sum())
-        else:  # a view the sensor missed is all holes
+        else:  # a view the sensor missed is all holes, beyond no reach
             measured = np.full(depth.shape, np.nan, np.float32) if sensor[i] is None else sensor[i]
-            fill = np.isnan(measured) & binary_erosion(np.isfinite(depth), iterations=FILL_MARGIN, border_value=1)
+            reach = float(np.nanmax(measured)) if np.isfinite(measured).any() else 0.0
+            fill = np.isnan(measured) & (depth > reach) & binary_erosion(np.isfinite(depth), iterations=FILL_MARGIN, border_value=1)
             depths[i] = np.where(fill, depth, measured).astype(measured.dtype)
-            given += int(fill.sum())
+            filled += int(fill.sum())
         covered += int(np.isfinite(depths[i]).sum())
     if sensor is None:
         if total == 0 or covered < MIN_LAYOUT_SHARE * total:
@@ -89,9 +91,9 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
         summary = f"{layout_summary(layout)}; {100.0 * covered / total:.0f} % of training pixels"
         info = {**scene.info, DEPTH_SOURCE_KEY: LAYOUT_SOURCE, LAYOUT_KEY: summary}
     else:
-        if given == 0:
+        if filled == 0:
             return scene, None
-        summary = (f"{layout_summary(layout)}; fills {100.0 * given / total:.1f} % of training pixels "
+        summary = (f"{layout_summary(layout)}; fills {100.0 * filled / total:.1f} % of training pixels "
                    f"where the sensor gave no depth ({100.0 * covered / total:.0f} % now have depth)")
         info = {**scene.info, LAYOUT_KEY: summary}
     return dataclasses.replace(scene, sensor_depths=depths, info=info), layout

@@ -23,10 +23,11 @@ PANEL_VIEWS = 8
 """A build draws the panels of at most this many held-out views, spread evenly over them: the
 pictures are for looking, and drawing one takes about as long as rendering it."""
 
-# What a build does after training, as measured on 2 cores with phone depth (the suite's 160x120
-# rooms, tools/bench_suite.py; docs/captures.md): a held-out view renders in 0.36-0.6 s and its
-# panels take about 0.3 s to draw; saving the checkpoint, loading the field and importing the
-# pictures' libraries take a second or two whatever the views.
+# What a build does after training, on 2 cores: a held-out 160x120 view renders in 0.3-0.6 s
+# (docs/depth_budget_suite.md and docs/layout_suite.md, "render s") and its panels take about 0.3 s
+# to draw; saving the checkpoint, loading the field and importing the pictures' libraries take a
+# second or two whatever the views. docs/depth_budget_suite.md, "Time plans", sets this estimate
+# beside what each build took.
 FINISH_SECONDS = 2.0
 RENDER_SECONDS_PER_MEGAPIXEL = 26.0
 PANEL_SECONDS = 0.3
