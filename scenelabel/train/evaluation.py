@@ -38,7 +38,7 @@ def expected_finish_seconds(held_out: Cameras, with_panels: bool) -> float:
     the ``held_out`` views (RENDER_SECONDS_PER_MEGAPIXEL) and, ``with_panels``, drawing the
     :func:`panel_views` of them (PANEL_SECONDS each)."""
     megapixels = float(np.sum(held_out.width.astype(np.float64) * held_out.height)) / 1e6
-    n_panels = len(panel_views(list(range(len(held_out))))) if with_panels else 0
+    n_panels = min(len(held_out), PANEL_VIEWS) if with_panels else 0  # len(panel_views(...))
     return FINISH_SECONDS + RENDER_SECONDS_PER_MEGAPIXEL * megapixels + PANEL_SECONDS * n_panels
 
 
@@ -73,9 +73,10 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
         label = scene.labels[i]
         if label is not None:
-            conf += confusion_matrix(out.label, label, class_ids, ignore)
+            view_conf = confusion_matrix(out.label, label, class_ids, ignore)
+            conf += view_conf
             conf_smooth += confusion_matrix(smoothed_label, label, class_ids, ignore)
-            view["miou"] = miou(confusion_matrix(out.label, label, class_ids, ignore))[0]
+            view["miou"] = miou(view_conf)[0]
         depth = scene.depths[i]
         if depth is not None:
             err = depth_error(out.depth, depth, depth > 0)

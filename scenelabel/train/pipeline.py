@@ -531,7 +531,8 @@ def build(
         sensed = scene.sensor_depths is not None
         scene, layout = with_layout_depth(scene, choose_views(scene, config.train.holdout)[0])
         if layout is not None:
-            config = config if sensed else resolve_for_layout(config)
+            if not sensed:  # the layout is the only depth: the settings of resolve_for_layout
+                config = resolve_for_layout(config)
             if progress:
                 print(f"layout: {scene.info.get(DEPTH_SOURCE_KEY, 'sensor depth')}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
