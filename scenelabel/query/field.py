@@ -157,20 +157,32 @@ class SemanticField:
         sigmas, logits = self.sigmas_and_logits_n(points_n, chunk)
         return sigmas, softmax64(logits)
 
+    def _kept_chunks(self, points_n: np.ndarray, chunk: int):
+        """(rows [k] int64, points [k, 3] tensor) of each ``chunk`` of normalised points [N, 3],
+        only the points where the density grid may hold density (chunks with none are skipped)."""
+        for i in range(0, len(points_n), chunk):
+            pts = self._tensor(points_n[i : i + chunk])
+            keep = self.occupancy(pts)  # [n_chunk] bool
+            if bool(keep.any()):
+                yield i + keep.nonzero()[:, 0].cpu().numpy(), pts[keep]
+
+    @torch.no_grad()
+    def sigmas_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+        """σ (normalised units) [N] float64 at normalised points [N, 3], without the class head and
+        the last layer's feature rows (:meth:`FieldNetwork.density`); 0 where the grid holds space empty."""
+        sigmas_out = np.zeros(len(points_n))
+        for rows, pts in self._kept_chunks(points_n, chunk):
+            sigmas_out[rows] = self.model.density(pts).cpu().numpy()
+        return sigmas_out
+
     @torch.no_grad()
     def sigmas_and_logits_n(self, points_n: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
         """σ (normalised units) [N] float64 and class logits [N, C] float32 (:meth:`_semantics_n`
         without the softmax; normalised-frame points [N, 3]; logits 0, i.e. uniform, where the grid holds space empty)."""
-        n, c = len(points_n), self.class_map.num_classes
-        sigmas_out = np.zeros(n)
-        logits_out = np.zeros((n, c), dtype=np.float32)
-        for i in range(0, n, chunk):
-            pts = self._tensor(points_n[i : i + chunk])
-            keep = self.occupancy(pts)  # [n_chunk] bool
-            if not bool(keep.any()):
-                continue
-            sigmas, logits = self.model.semantics(pts[keep])
-            rows = i + keep.nonzero()[:, 0].cpu().numpy()
+        sigmas_out = np.zeros(len(points_n))
+        logits_out = np.zeros((len(points_n), self.class_map.num_classes), dtype=np.float32)
+        for rows, pts in self._kept_chunks(points_n, chunk):
+            sigmas, logits = self.model.semantics(pts)
             sigmas_out[rows] = sigmas.cpu().numpy()
             logits_out[rows] = logits.float().cpu().numpy()
         return sigmas_out, logits_out

@@ -57,12 +57,12 @@ chunk (:func:`scenelabel.query.map_writer.write_occupancy_map`)."""
 MAX_SUBSAMPLES = 4
 """At most this many sub-samples per voxel axis when evaluating a map."""
 
-REFINE_OCCUPANCY = 0.1
+REFINE_OCCUPANCY = 0.25
 """A map voxel is read at its sub-samples only where its centre or a neighbour's centre has at
-least this occupancy (:func:`evaluate_map_block`), a fifth of the threshold 0.5: the field varies
-over its finest cell, about a voxel, so a surface between two centres raises theirs. Chosen on the
-bench room (where no occupied voxel of the full rule was lost); docs/map_ab.md compares the two
-rules on suite rooms."""
+least this occupancy (:func:`evaluate_map_block`), half the threshold 0.5: the field varies over
+its finest cell, about a voxel, so a surface between two centres raises theirs. 0.1 (a fifth of
+the threshold) refined about twice as many voxels for the same occupied voxels to a few in ten
+thousand; docs/map_ab.md compares the two on suite rooms."""
 
 
 def occupancy_map(
@@ -187,18 +187,19 @@ def subsample_offsets(field: "SemanticField", voxel_size: float) -> np.ndarray:
 def densest_subsample(
     field: "SemanticField", centres: np.ndarray, offsets: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """σ (normalised units) [K] and class logits [K, C] of each voxel at its densest sub-sample.
+    """σ (normalised units) [K] and class logits [K, C] of each voxel at its densest sub-sample:
+    the density at every sub-sample (:meth:`SemanticField.sigmas_n`, no class work), the class
+    logits at the densest one only.
 
     Args:
         centres: [K, 3] world voxel centres.
         offsets: [S, 3] world sub-sample offsets (:func:`subsample_offsets`).
     """
-    pts = (centres[:, None, :] + offsets[None]).reshape(-1, 3)
-    sig_n, sub_logits = field.sigmas_and_logits_n(field.frame.to_normalised(pts))
-    sig_n = sig_n.reshape(len(centres), len(offsets))  # [K, S]
-    densest = sig_n.argmax(-1)  # [K]
-    rows = np.arange(len(centres))
-    return sig_n[rows, densest], sub_logits.reshape(len(centres), len(offsets), sub_logits.shape[-1])[rows, densest]
+    pts = centres[:, None, :] + offsets[None]  # [K, S, 3]
+    sig_n = field.sigmas_n(field.frame.to_normalised(pts.reshape(-1, 3))).reshape(len(centres), len(offsets))
+    rows, densest = np.arange(len(centres)), sig_n.argmax(-1)  # [K] each
+    _, logits = field.sigmas_and_logits_n(field.frame.to_normalised(pts[rows, densest]))
+    return sig_n[rows, densest], logits
 
 
 def map_visibility_inputs(
