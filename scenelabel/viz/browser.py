@@ -178,7 +178,14 @@ class HeadlessBrowser:
         next one then): their params (``data``, ``metadata.timestamp``), or None after ``poll`` seconds
         without a new one; until ``deadline`` (time.monotonic()). Close it to stop the screencast."""
         self._frames.clear()
-        self.send("Page.startScreencast", format="png")
+        while True:
+            try:
+                self.send("Page.startScreencast", format="jpeg", quality=90)  # cheaper for the page to encode than png
+                break
+            except RuntimeError as error:  # a page still being swapped in after open(): try again
+                if "Not attached to an active page" not in str(error) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.02)
         try:
             while time.monotonic() <= deadline:
                 if self._frames:
