@@ -1,7 +1,5 @@
 """A headless Chromium driven over the DevTools protocol: open a page, wait until it shows what is
-expected, take a screenshot; or watch the frames the page draws itself (its screencast), to time
-when it first showed something and to wait until it is at rest. Used to check, to picture and to
-time the web viewer (tests, tools/screenshots.py).
+expected, take a screenshot. Used to check and to picture the web viewer (tests, tools/screenshots.py).
 
 WebGL runs in software (SwiftShader: ``--use-angle=swiftshader --enable-unsafe-swiftshader``), so
 no GPU or display is needed. The binary is ``$SCENELABEL_CHROMIUM`` or the first of
@@ -12,7 +10,6 @@ where it can).
 from __future__ import annotations
 
 import base64
-import contextlib
 import io
 import json
 import os
@@ -22,8 +19,7 @@ import subprocess
 import tempfile
 import time
 import urllib.request
-from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -83,7 +79,6 @@ class HeadlessBrowser:
         self._proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=self._log)
         self._ws = None
         self._next_id = 0
-        self._frames: deque[dict] = deque()  # screencast frames that arrived while waiting for a reply
         try:
             self._connect()
         except BaseException:
@@ -112,8 +107,7 @@ class HeadlessBrowser:
         self.send("Emulation.setDeviceMetricsOverride", **metrics)
 
     def send(self, method: str, **params) -> dict:
-        """One DevTools command; returns its result (events that arrive meanwhile are dropped, but for
-        screencast frames, kept for :meth:`watch_for`).
+        """One DevTools command; returns its result (events that arrive meanwhile are dropped).
 
         Raises:
             RuntimeError: the browser answered with an error.
@@ -126,8 +120,6 @@ class HeadlessBrowser:
                 if "error" in message:
                     raise RuntimeError(f"{method}: {message['error']}")
                 return message.get("result", {})
-            if message.get("method") == "Page.screencastFrame":
-                self._frames.append(message["params"])
 
     def open(self, url: str) -> None:
         """Load ``url`` in the page."""
@@ -172,77 +164,6 @@ class HeadlessBrowser:
                 err.image = image  # type: ignore[attr-defined]
                 raise err
             time.sleep(interval)
-
-    def _screencast(self, deadline: float, poll: float) -> Iterator[dict | None]:
-        """The frames the page draws (the DevTools screencast), each acknowledged (the browser sends the
-        next one then): their params (``data``, ``metadata.timestamp``), or None after ``poll`` seconds
-        without a new one; until ``deadline`` (time.monotonic()). Close it to stop the screencast."""
-        self._frames.clear()
-        while True:
-            try:
-                self.send("Page.startScreencast", format="jpeg", quality=90)  # cheaper for the page to encode than png
-                break
-            except RuntimeError as error:  # a page still being swapped in after open(): try again
-                if "Not attached to an active page" not in str(error) or time.monotonic() > deadline:
-                    raise
-                time.sleep(0.02)
-        try:
-            while time.monotonic() <= deadline:
-                if self._frames:
-                    frame = self._frames.popleft()
-                    self.send("Page.screencastFrameAck", sessionId=frame["sessionId"])
-                    yield frame
-                    continue
-                try:
-                    message = json.loads(self._ws.recv(timeout=poll))
-                except TimeoutError:  # the page drew nothing new
-                    yield None
-                    continue
-                if message.get("method") == "Page.screencastFrame":
-                    self._frames.append(message["params"])
-        finally:
-            self.send("Page.stopScreencast")
-
-    def watch_for(self, ready: Callable[[np.ndarray], bool], timeout: float = 60.0) -> tuple[np.ndarray, float]:
-        """Watch the frames the page draws (its screencast) until ``ready(image)`` holds.
-
-        Unlike :meth:`wait_for`, whose every screenshot makes the browser draw and encode a frame of
-        its own (slow in software WebGL, and the page waits meanwhile), this sees the frames the
-        page draws anyway and when it drew them: the way to time when a page first showed something.
-
-        Returns:
-            the frame ([height, width, 3] uint8 RGB) and when the browser drew it (seconds since the
-            epoch, the clock of ``time.time()``).
-        Raises:
-            TimeoutError: not within ``timeout`` seconds.
-        """
-        from PIL import Image
-
-        with contextlib.closing(self._screencast(time.monotonic() + timeout, 0.5)) as frames:
-            for frame in frames:
-                if frame is None:
-                    continue
-                with Image.open(io.BytesIO(base64.b64decode(frame["data"]))) as im:
-                    image = np.asarray(im.convert("RGB"))
-                if ready(image):
-                    return image, float(frame["metadata"]["timestamp"])
-        raise TimeoutError(f"the page did not show what was expected within {timeout:g} s")
-
-    def wait_until_still(self, quiet: float = 1.0, timeout: float = 60.0) -> None:
-        """Return once the page has drawn no new frame for ``quiet`` seconds (it is at rest: what it
-        shows is drawn, and it takes no CPU), watching its screencast.
-
-        Raises:
-            TimeoutError: it kept drawing for ``timeout`` seconds.
-        """
-        last = time.monotonic()
-        with contextlib.closing(self._screencast(last + timeout, 0.1)) as frames:
-            for frame in frames:
-                if frame is not None:
-                    last = time.monotonic()
-                elif time.monotonic() - last >= quiet:
-                    return
-        raise TimeoutError(f"the page kept drawing for {timeout:g} s")
 
     def close(self) -> None:
         """Close the page and end the browser (idempotent)."""
