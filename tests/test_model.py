@@ -137,6 +137,21 @@ def test_density_alone_is_the_full_forwards_density(head, network):
     torch.testing.assert_close(model.density(pts), sigmas)
 
 
+def test_one_output_row_does_not_depend_on_the_batch():
+    """SkipMLP's single-row output (the density of ``density``) is the same bits for a point
+    whatever else shares its batch, as the full forward's rows are, so that a map's blocks agree
+    exactly however the lattice is split (batches of a few rows, under a dozen, take other BLAS
+    paths in the hidden layers, full forward included)."""
+    torch.manual_seed(4)
+    mlp = SkipMLP(12, 64, 65, 3, skip=1)
+    x = torch.rand(4099, 12)
+    with torch.no_grad():
+        whole = mlp(x, n_out=1)
+        for start, stop in [(5, 21), (17, 50), (100, 1100), (3, 4099)]:
+            torch.testing.assert_close(mlp(x[start:stop], n_out=1), whole[start:stop], rtol=0, atol=0)
+        torch.testing.assert_close(whole, mlp(x)[:, :1])  # the full forward's first row, to rounding
+
+
 @pytest.mark.parametrize("network", sorted(NETWORKS))
 @pytest.mark.parametrize("head", ["linear", "density"])
 def test_heads_on_a_subset_of_the_features_are_the_full_forwards(head, network):

@@ -96,6 +96,16 @@ def test_concurrent_queries_match_sequential(field):
     assert_concurrent_calls_match(lambda p: field.query_points(p).density, pts)
 
 
+def test_density_only_reads_are_the_semantic_reads_density(field):
+    """sigmas_n (a map's sub-samples) gives sigmas_and_logits_n's σ, 0 where the grid holds space empty."""
+    rng = np.random.default_rng(2)
+    pts_n = field.frame.to_normalised(rng.uniform(*field.aabb, size=(3000, 3)))
+    sig_n, _ = field.sigmas_and_logits_n(pts_n)
+    np.testing.assert_allclose(field.sigmas_n(pts_n), sig_n, rtol=1e-5, atol=1e-6)
+    empty = ~field.occupancy(torch.as_tensor(pts_n, dtype=torch.float32)).numpy()
+    assert empty.any() and np.all(field.sigmas_n(pts_n)[empty] == 0)
+
+
 def test_occupancy_map_bounds_and_codes(field):
     occ = field.occupancy_map(voxel_size=0.1, bounds=np.array([[-0.5, -0.5, 0.0], [0.5, 0.5, 0.5]]))
     assert occ.voxel_size == 0.1 and occ.occupancy_delta == 0.1

@@ -77,8 +77,9 @@ class SkipMLP(nn.Sequential):
 
     def forward(self, x: torch.Tensor, n_out: int | None = None) -> torch.Tensor:
         """x [n, in_dim] -> [n, out_dim], or with ``n_out`` only the first n_out outputs [n, n_out]
-        (the last layer's other rows are not computed; one row as a per-point dot product, whose value
-        does not depend on how many points share the batch). Without autograd (queries, renders, maps)
+        (the last layer's other rows are not computed; one row as a per-point dot product: a
+        matrix-vector product's last bits change with the batch size, which a map's blocks would
+        see). Without autograd (queries, renders, maps)
         the ReLUs work in place: no second [n, hidden] tensor per layer."""
         h, layer, last = x, 0, len(self) - 1
         in_place = not torch.is_grad_enabled()
@@ -87,8 +88,8 @@ class SkipMLP(nn.Sequential):
                 if layer == self.skip:
                     h = torch.cat([h, x], -1)
                 layer += 1
-            if i == last and n_out == 1:  # a dot product per point: unlike a matrix-vector product's, its
-                return (h * mod.weight[0]).sum(-1, keepdim=True) + mod.bias[:1]  # last bits do not depend on the batch
+            if i == last and n_out == 1:  # a dot product per point, the same bits in any batch
+                return (h * mod.weight[0]).sum(-1, keepdim=True) + mod.bias[:1]
             if i == last and n_out is not None:
                 return F.linear(h, mod.weight[:n_out], mod.bias[:n_out])
             h = torch.relu_(h) if in_place and isinstance(mod, nn.ReLU) else mod(h)
