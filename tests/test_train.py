@@ -25,12 +25,12 @@ def scene(tmp_path_factory):
     return write_toy_scene(tmp_path_factory.mktemp("train") / "scene", n_train=14, n_test=2, width=32, height=24)
 
 
-def test_learning_rate_100x_too_high_is_detected(scene, tmp_path):
+def test_learning_rate_1000x_too_high_is_detected(scene, tmp_path):
     base = preset("quick").train
     config = preset(
         "quick",
         {
-            "train": {"steps": 400, "lr_encoding": 100 * base.lr_encoding, "lr_mlp": 100 * base.lr_mlp, "checkpoint_every": 50},
+            "train": {"steps": 400, "lr_encoding": 1000 * base.lr_encoding, "lr_mlp": 1000 * base.lr_mlp, "checkpoint_every": 50},
             "output": {"write_map": False, "write_renders": False},
         },
     )

@@ -52,8 +52,10 @@ DIVERGENCE_CHECK_STEP = 200
 """From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
 as the mean training colour (the colour variance) has diverged and is stopped. A room of plain walls
 (the mean colour already a good guess) trained on sensor depth can still sit there at step 100
-(gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200); a learning rate 100 times
-too high stays above it for longer (the toy scene: 1.14 times at step 200)."""
+(gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200). A learning rate 100 times
+too high sat just above it on the toy scene on one machine (1.14 times at step 200) and was not
+caught on another (its float rounding took another path): the check catches runs that fail
+clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
 
 MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
