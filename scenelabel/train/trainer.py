@@ -54,7 +54,7 @@ as the mean training colour (the colour variance) has diverged and is stopped. A
 (the mean colour already a good guess) trained on sensor depth can still sit there at step 100
 (gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200). A learning rate 100 times
 too high sat just above it on the toy scene on one machine (1.14 times at step 200) and was not
-caught on another (its float rounding took another path): the check catches runs that fail
+caught on another (2026-11-27, the same code): the check catches runs that fail
 clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
 
 MSE_EMA = 0.1
