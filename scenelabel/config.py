@@ -135,7 +135,9 @@ class SamplingConfig:
     # depth (plus CARVE_MARGIN of it), not at the box: behind a surface nothing is seen (0: at the box).
     # The depth term still places a ray's transparent rest at the box's far side
     depth_ray_end: float = 2.0
-    chunk_rays: int = 4096  # rays per chunk when rendering outside training
+    # rays per chunk when rendering outside training: a 160x120 view in one chunk (the early-stop marcher
+    # evaluates at most chunk_rays x EARLY_STOP_SEGMENT samples at once; per chunk it pays a fixed cost)
+    chunk_rays: int = 32768
     # grid: march n_steps, skipping cells the density grid holds empty | hierarchical: NeRF's
     # coarse + fine networks (n_coarse stratified samples, n_fine more drawn from the coarse weights)
     strategy: str = "grid"
@@ -410,7 +412,8 @@ PRESETS: dict[str, dict] = {
     # keeps the refreshes affordable for a large MLP (the grid also serves point queries and maps).
     "paper": {  # the original NeRF: 8 x 256 with the input again before layer 5
         "field": {**_MLP_FIELD, "hidden": 256, "layers": 8, "skip_layer": 5},
-        "sampling": {"grid_resolution": 32, "strategy": "hierarchical", "n_coarse": 64, "n_fine": 128},
+        # hierarchical rendering evaluates every sample of a chunk at once: 4096 rays x 193 samples x 256
+        "sampling": {"grid_resolution": 32, "strategy": "hierarchical", "n_coarse": 64, "n_fine": 128, "chunk_rays": 4096},
         "train": {**_MLP_TRAIN, "steps": 20000},
     },
     "multihead": {  # the seed's 6-layer variant; colour and class heads separate from the trunk

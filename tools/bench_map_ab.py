@@ -1,4 +1,4 @@
-"""The same builds, two versions of the map-making code: map time and the map's 3D metrics.
+"""The same builds, two versions of the query code: map time and the map's 3D metrics, render time.
 
     .venv/bin/python tools/bench_map_ab.py --base HEAD                      # docs/map_ab.md and .json
     .venv/bin/python tools/bench_map_ab.py --base HEAD~2 --scenes office-5x4 --out /tmp/ab.md
@@ -9,7 +9,11 @@ each build's ``occupancy_map(0.05)`` is made and scored by the code of ``--base`
 put first on ``PYTHONPATH``) and by the working tree, each in a fresh process: the map's time
 (the faster of REPEATS calls after a warm-up), and against the room's exact geometry, as
 tools/bench_suite.py scores it, the labels of points 2 cm behind true surfaces and of free points
-in front of them, the F-score at 5 cm, and the UNKNOWN fraction. Run it on an idle machine.
+in front of them, the F-score at 5 cm, and the UNKNOWN fraction; and the time of a render of each
+held-out view (median; 160x120 in the suite) and of a 320x240 render (the viewer's "render this
+view") of the first, the faster of REPEATS, each version with its own default ray chunk
+(``SamplingConfig.chunk_rays``: the build's config stores the chunk of the code that built it).
+Run it on an idle machine.
 """
 
 from __future__ import annotations
@@ -58,7 +62,25 @@ geometry = suite_geometry(room)
 lo, hi = M.boxes_lo_hi(geometry.boxes)
 occupied = occ.world_from_index(np.argwhere(occ.occupied))
 f = M.surface_fscore(occupied, _truth_points(scene, rng), M.FSCORE_THRESHOLD, lo, hi)
+import dataclasses, statistics
+from scenelabel.config import SamplingConfig
+sampling = dataclasses.replace(field.config.sampling, chunk_rays=SamplingConfig().chunk_rays)
+field.config = dataclasses.replace(field.config, sampling=sampling)
+render_times = []
+for i in [test_idx[0], *test_idx]:  # the first again: a warm-up
+    t0 = time.perf_counter()
+    field.render_camera(scene.cameras, i)
+    render_times.append(time.perf_counter() - t0)
+cam = scene.cameras[test_idx[0]]
+viewer_times = []
+for _ in range({repeats}):
+    t0 = time.perf_counter()
+    field.render(cam.c2w[0], 2 * int(cam.width[0]), 2 * int(cam.height[0]), (2 * cam.fx[0], 2 * cam.fy[0]))
+    viewer_times.append(time.perf_counter() - t0)
 print(json.dumps({{
+    "render_seconds": statistics.median(render_times[1:]),
+    "render_size": [int(cam.width[0]), int(cam.height[0])],
+    "viewer_render_seconds": min(viewer_times),
     "map_seconds": min(times),
     "surface_map": M.label_accuracy(occ.label_at(surface), true_class[ray_index]),
     "free_map": M.label_accuracy(occ.label_at(free), np.full(len(free), FREE)),
@@ -122,16 +144,17 @@ def base_worktree(rev: str, path: Path):
 
 def write_markdown(r: dict, path: Path, command: str) -> None:
     lines = [
-        "# Map-making code A/B on the same builds",
+        "# Query code A/B on the same builds: maps and renders",
         "",
         f"{generated_by(command)} Each room built once ({STEPS} steps, the `fast` "
         f"preset); its `occupancy_map(0.05)` made by the code of **{r['base']}** (base) and of **{r['new']}** "
         f"(new), each in a fresh process; map time: the faster of {REPEATS} calls. Metrics as tools/bench_suite.py "
-        "computes them, against the room's exact geometry.",
+        "computes them, against the room's exact geometry. Render: the median over the held-out views "
+        f"(at the suite's image size), and a view at twice that size (the viewer's 320x240), the faster of {REPEATS}.",
         "",
         "| room | set | map time base → new | surface labels (map) | free points (map) | F-score at 5 cm "
-        "| UNKNOWN voxels |",
-        "|---|---|---|---|---|---|---|",
+        "| UNKNOWN voxels | render base → new | 2x render base → new |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in r["rows"]:
         b, n = row["base"], row["new"]
@@ -140,9 +163,15 @@ def write_markdown(r: dict, path: Path, command: str) -> None:
             f"{n['map_seconds']:.1f} s ({b['map_seconds'] / n['map_seconds']:.2f}x) "
             f"| {100 * b['surface_map']:.1f} → {100 * n['surface_map']:.1f} % "
             f"| {100 * b['free_map']:.2f} → {100 * n['free_map']:.2f} % "
-            f"| {b['fscore']:.3f} → {n['fscore']:.3f} | {100 * b['unknown']:.1f} → {100 * n['unknown']:.1f} % |"
+            f"| {b['fscore']:.3f} → {n['fscore']:.3f} | {100 * b['unknown']:.1f} → {100 * n['unknown']:.1f} % "
+            f"| {_ratio(b, n, 'render_seconds')} | {_ratio(b, n, 'viewer_render_seconds')} |"
         )
     path.write_text("\n".join(lines) + "\n")
+
+
+def _ratio(base: dict, new: dict, key: str) -> str:
+    """``base → new s (ratio)`` of a time both rows carry."""
+    return f"{base[key]:.3f} → {new[key]:.3f} s ({base[key] / new[key]:.2f}x)"
 
 
 def main() -> None:

@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 
-EARLY_STOP_SEGMENT = 16
+EARLY_STOP_SEGMENT = 8
 """Samples per ray evaluated between two transmittance checks."""
 
 OPAQUE_TRANS = 0.1
