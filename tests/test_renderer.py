@@ -21,10 +21,10 @@ N_CLASSES = 3
 
 
 class SlabField:
-    """σ = sigma inside the slab x > 0.2 (and a thin haze elsewhere), colour and classes varying with x."""
+    """σ = sigma inside the slab x > 0.2 (a thin haze, σ = ``haze``, elsewhere), colour and classes varying with x."""
 
-    def __init__(self, sigma: float, semantic_rendering: str = "probs"):
-        self.sigma = sigma
+    def __init__(self, sigma: float, semantic_rendering: str = "probs", haze: float = 0.05):
+        self.sigma, self.haze = sigma, haze
         self.warp = BoxWarp(AABB)
         self.num_classes = N_CLASSES
         self.config = SimpleNamespace(semantic_rendering=semantic_rendering)
@@ -42,7 +42,8 @@ class SlabField:
     def features(self, points):  # the trunk's part: σ, and the points as the heads' input
         self.calls += len(points)
         x = points[:, 0]
-        return torch.where(x > 0.2, torch.full_like(x, self.sigma), torch.full_like(x, 0.05)), points, points[:, :0]
+        sigmas = torch.where(x > 0.2, torch.full_like(x, self.sigma), torch.full_like(x, self.haze))
+        return sigmas, points, points[:, :0]
 
     def heads(self, h, raw, directions):
         self.head_calls += len(h)
@@ -153,6 +154,36 @@ def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_thresho
     torch.testing.assert_close(stopped.class_log_probs.exp(), full.class_log_probs.exp(), rtol=0, atol=2 * min_trans)
     span = float((t_max - t_min).max())
     torch.testing.assert_close(stopped.depth, full.depth, rtol=0, atol=2 * min_trans * span)
+
+
+def test_early_stop_drops_faint_samples_within_the_bound():
+    """Samples whose σ δ is below min_trans / S (S marched samples) get no head work and count as
+    σ = 0: a haze just below that drops its whole weight, which stays below min_trans per ray."""
+    o, d, t_min, t_max = rays()
+    marching, min_trans = Marching(0.02, 120), 1e-4
+    haze = 0.9 * min_trans / marching.n_samples / marching.step  # σ δ at 0.9 of the faint limit
+    field = SlabField(sigma=200.0, haze=haze)
+    full = render_rays(field, every_cell, o, d, t_min, t_max, marching)
+    field.calls = field.head_calls = 0
+    stopped = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, marching, min_trans=min_trans)
+    in_slab = 0
+    for a, b, origin, direction in zip(t_min.tolist(), t_max.tolist(), o, d):  # slab samples in front of the stop
+        starts = torch.arange(marching.n_samples) * marching.step + a
+        middles = (0.5 * (starts + torch.minimum(starts + marching.step, torch.tensor(b))))[starts < b]
+        in_slab += int(((origin[0] + middles * direction[0]) > 0.2).sum())
+    assert field.head_calls <= in_slab < field.calls  # no haze sample reached the heads
+    assert (full.opacity - stopped.opacity).abs().max() <= 2 * min_trans
+    torch.testing.assert_close(stopped.rgb, full.rgb, rtol=0, atol=2 * min_trans)
+    hit = full.opacity >= 0.5  # averages over the weights move by the dropped weight over the opacity
+    assert 0 < int(hit.sum()) < len(hit)
+    probs, full_probs = stopped.class_log_probs.exp()[hit], full.class_log_probs.exp()[hit]
+    torch.testing.assert_close(probs, full_probs, rtol=0, atol=4 * min_trans)
+    span = float((t_max - t_min).max())
+    torch.testing.assert_close(stopped.depth[hit], full.depth[hit], rtol=0, atol=4 * min_trans * span)
+    haze_only = SlabField(sigma=0.0, haze=haze)  # nothing but faint samples: nothing composited
+    empty = render_rays_early_stop(haze_only, every_cell, o, d, t_min, t_max, marching, min_trans=min_trans)
+    assert haze_only.head_calls == 0 and float(empty.opacity.max()) == 0.0
+    assert float(render_rays(haze_only, every_cell, o, d, t_min, t_max, marching).opacity.max()) < min_trans
 
 
 def test_early_stop_finite_at_extreme_densities():

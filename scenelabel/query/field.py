@@ -252,8 +252,9 @@ class SemanticField:
         """What each ray hits, how far, and with which class.
 
         Rays are composited as in training (eq. 2 / eq. 7, no jitter), except that a ray stops
-        once its transmittance is below :data:`scenelabel.render.constants.EARLY_STOP_TRANS` (1e-4): the
-        weight it leaves out is at most that. A field trained with hierarchical sampling
+        once its transmittance is below :data:`scenelabel.render.constants.EARLY_STOP_TRANS` (1e-4), and
+        samples too faint to matter count as empty: the weight left out is at most twice that
+        (:func:`~scenelabel.render.marcher.render_rays_early_stop`). A field trained with hierarchical sampling
         (``sampling.strategy``) renders as in training: coarse, then fine samples, no early stop.
 
         Args:

@@ -180,9 +180,16 @@ def render_rays_early_stop(
     ``field.features``); a sample in front of which the transmittance T = exp(-Σ σ_j δ_j) has
     already fallen below ``min_trans`` counts as σ = 0 and gets no colour or class work
     (``field.heads`` runs on the others only), and after each segment a ray past that point
-    evaluates nothing further. The composite is then the same as :func:`render_rays`' with every
-    weight after the stop dropped: at most ``min_trans`` of weight in all, so colour, class
-    probabilities and depth move by at most about ``min_trans`` times their range.
+    evaluates nothing further. A faint sample, σ δ below ``min_trans`` / S (S the ray's marched
+    samples), also counts as σ = 0: its weight T (1 - exp(-σ δ)) is at most σ δ, so all of a
+    ray's faint samples together hold less than ``min_trans`` (in a room, many of the samples the
+    density grid lets through: free space in the cells beside a surface). The composite
+    is then the same as :func:`render_rays`' with those weights dropped: at most 2 ``min_trans``
+    of weight in all, so colour and opacity move by at most about 2 ``min_trans`` times their
+    range, and class probabilities and depth (averages over the weights: divided by the opacity)
+    by at most about 2 ``min_trans`` / opacity times theirs, 4 ``min_trans`` on a ray that hits
+    something (opacity at least 0.5). A ray that meets nothing but faint samples composites to
+    nothing (uniform classes, depth at its end), as a ray through empty space does.
 
     Args:
         as :func:`render_rays` (``field`` with ``features`` and ``heads`` as
@@ -198,6 +205,7 @@ def render_rays_early_stop(
     with_rgb = options.with_rgb
     optical = torch.zeros(n_rays, dtype=torch.float64, device=origins.device)  # Σ σ δ so far, per ray
     max_optical = -math.log(min_trans) if min_trans > 0 else math.inf
+    faint = min_trans / max(n_cols, 1)  # a sample of σ δ below this holds less than min_trans / n_cols of weight
     active = torch.arange(n_rays, device=origins.device)
     found_rows, found_cols, parts = [], [], []
     n_evaluated = 0
@@ -214,7 +222,8 @@ def render_rays_early_stop(
         taus = (sigmas * (te - ts)[rows, cols]).double()  # σ δ of each sample
         packed = torch.zeros(ts.shape, dtype=torch.float64, device=origins.device).index_put_((rows, cols), taus)
         before = optical.index_select(0, active).index_select(0, rows) + (packed.cumsum(1) - packed)[rows, cols]
-        live = (before < max_optical).nonzero().squeeze(1)  # T in front of the sample still at least min_trans
+        # T in front of the sample still at least min_trans, and σ δ not faint
+        live = ((before < max_optical) & (taus >= faint)).nonzero().squeeze(1)
         rows, cols = rows.index_select(0, live), cols.index_select(0, live)
         rgbs, logits = field.heads(h.index_select(0, live), raw.index_select(0, live),
                                    directions.index_select(0, active.index_select(0, rows)) if with_rgb else None)

@@ -241,9 +241,9 @@ def occupied_at(bits: torch.Tensor, aabb: torch.Tensor, points: torch.Tensor) ->
     res = torch.tensor(bits.shape, device=points.device)
     rel = (points - aabb[0]) / (aabb[1] - aabb[0])
     inside = ((rel >= 0) & (rel < 1)).all(-1)
-    idx = (rel * res).long()
-    idx = torch.minimum(idx.clamp(min=0), res - 1)
-    return bits[idx[..., 0], idx[..., 1], idx[..., 2]] & inside
+    idx = torch.minimum((rel * res).long().clamp_(min=0), res - 1)
+    flat = (idx[..., 0] * bits.shape[1] + idx[..., 1]) * bits.shape[2] + idx[..., 2]  # one gather, not three indices
+    return bits.reshape(-1).index_select(0, flat.reshape(-1)).reshape(flat.shape) & inside
 
 
 def cell_indices(resolution: int, points_cube: torch.Tensor) -> torch.Tensor:
