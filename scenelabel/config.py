@@ -379,7 +379,7 @@ PRESETS: dict[str, dict] = {
     # training, whichever comes first (with sensor depth 1600 steps or what a build of 88 s leaves
     # after setup and evaluation: train.steps and train.time_budget "auto"), so that a default
     # build's time is known before it starts
-    # (docs/suite.md: what 150 s buys on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth)
+    # (docs/suite.md: this build on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth)
     "fast": {"train": {"time_budget": AUTO}},
     # captures with sensor depth (RGB-D, phone LiDAR; docs/captures.md) when time matters more than
     # labels: the depth terms make surfaces early, so 800 steps (at most 75 s of training) gave the
