@@ -15,6 +15,7 @@ from scenelabel.render.marcher import (
     render_rays_early_stop,
     render_rays_hierarchical,
 )
+from scenelabel.render.sampling import DensityGrid
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 N_CLASSES = 3
@@ -136,6 +137,21 @@ def test_early_stop_with_zero_threshold_is_the_full_composite():
         assert stopped.n_evaluated == full.n_evaluated
         for name in ("rgb", "depth", "opacity", "class_log_probs"):
             torch.testing.assert_close(getattr(stopped, name), getattr(full, name), rtol=0, atol=1e-6)
+
+
+def test_early_stop_reads_a_box_grid_along_the_rays_as_render_rays_reads_its_points():
+    """With a DensityGrid over a box the marcher reads cells without forming every point
+    (DensityGrid.cells_along): the same samples and composite as render_rays, which asks the grid
+    at the points."""
+    grid = DensityGrid(BoxWarp(AABB), resolution=9, step=0.03)
+    grid.bits = torch.rand(9, 9, 9, generator=torch.Generator().manual_seed(3)) < 0.6
+    field = SlabField(sigma=30.0)
+    o, d, t_min, t_max = rays()
+    full = render_rays(field, grid, o, d, t_min, t_max, Marching(0.03, 80))
+    stopped = render_rays_early_stop(field, grid, o, d, t_min, t_max, Marching(0.03, 80), min_trans=0.0)
+    assert stopped.n_evaluated == full.n_evaluated < len(o) * 80
+    for name in ("rgb", "depth", "opacity", "class_log_probs"):
+        torch.testing.assert_close(getattr(stopped, name), getattr(full, name), rtol=0, atol=1e-6)
 
 
 def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_threshold():

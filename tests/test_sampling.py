@@ -78,6 +78,25 @@ def test_occupied_at_indexing_and_outside():
     assert occupied_at(bits, aabb, pts).tolist() == [True, False, False, False]
 
 
+def test_grid_read_along_rays_matches_the_points():
+    """cells_along + occupied_cells (a marcher's read, no points formed) give the grid's answer at
+    o + t d for points inside the box; a forward warp has no such read."""
+    aabb = torch.tensor([[-1.0, -2.0, 0.5], [3.0, 1.0, 2.0]])
+    grid = DensityGrid(BoxWarp(aabb), resolution=7, step=0.01)
+    grid.bits = torch.rand(7, 7, 7, generator=torch.Generator().manual_seed(0)) < 0.5
+    g = torch.Generator().manual_seed(1)
+    origins = aabb[0] + torch.rand(50, 3, generator=g) * (aabb[1] - aabb[0])
+    directions = torch.nn.functional.normalize(torch.randn(50, 3, generator=g), dim=-1)
+    t = torch.rand(50, 9, generator=g) * 0.5
+    points = origins[:, None] + t[..., None] * directions[:, None]
+    inside = ((points >= aabb[0]) & (points < aabb[1])).all(-1)
+    start, step = grid.cells_along(origins, directions)
+    along = grid.occupied_cells(start[:, None] + t[..., None] * step[:, None])
+    assert int(inside.sum()) > 200
+    torch.testing.assert_close(along[inside], grid(points)[inside])
+    assert DensityGrid(_forward_warp(), resolution=4, step=0.01).cells_along(origins, directions) is None
+
+
 def test_grid_update_marks_dense_cells_only():
     aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
     grid = DensityGrid(BoxWarp(aabb), resolution=8, step=0.01, alpha_threshold=0.01)

@@ -209,15 +209,14 @@ def render_rays_early_stop(
     active = torch.arange(n_rays, device=origins.device)
     found_rows, found_cols, parts = [], [], []
     n_evaluated = 0
+    cells = occupancy.cells_along(origins, directions) if hasattr(occupancy, "cells_along") else None
     for start in range(0, n_cols, segment):
         if active.numel() == 0:
             break
         stop = min(start + segment, n_cols)
-        ts, te = t_starts[active, start:stop], t_ends[active, start:stop]  # [A, s]
-        points = _points(origins[active], directions[active], ts, te)
-        keep = (te > ts) & occupancy(points)
-        rows, cols = keep.nonzero(as_tuple=True)
-        sigmas, h, raw = field.features(points[rows, cols])
+        ts, te = t_starts[:, start:stop].index_select(0, active), t_ends[:, start:stop].index_select(0, active)  # [A, s]
+        rows, cols, points = _occupied_samples(occupancy, cells, (origins, directions), active, (ts, te))
+        sigmas, h, raw = field.features(points)
         n_evaluated += len(rows)
         taus = (sigmas * (te - ts)[rows, cols]).double()  # σ δ of each sample
         packed = torch.zeros(ts.shape, dtype=torch.float64, device=origins.device).index_put_((rows, cols), taus)
@@ -295,6 +294,25 @@ def _render_intervals(field, origins, directions, intervals, limits, options):
     samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
     out = _composite(field, (rows, cols), intervals, samples, limits, options)
     return out, t_starts.new_zeros(t_starts.shape).index_put((rows, cols), samples[0].to(t_starts.dtype))
+
+
+def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
+    """The samples of rays ``active`` [A] at intervals (t_starts, t_ends) [A, s] of positive length
+    whose middle ``occupancy`` holds occupied: (rows, cols) [k] into [A, s] and their points [k, 3].
+    With ``cells`` (:meth:`~scenelabel.render.sampling.DensityGrid.cells_along`) the grid is read at
+    cell coordinates linear in t, and only the kept samples' points are formed."""
+    (origins, directions), (ts, te) = rays, intervals
+    t_mids = 0.5 * (ts + te)
+    if cells is None:
+        points = _points(origins.index_select(0, active), directions.index_select(0, active), ts, te)
+        rows, cols = ((te > ts) & occupancy(points)).nonzero(as_tuple=True)
+        return rows, cols, points[rows, cols]
+    start, step = (c.index_select(0, active) for c in cells)
+    coords = start[:, None, :] + t_mids[..., None] * step[:, None, :]  # [A, s, 3]
+    rows, cols = ((te > ts) & occupancy.occupied_cells(coords)).nonzero(as_tuple=True)
+    ray = active.index_select(0, rows)
+    points = origins.index_select(0, ray) + _take(t_mids, rows, cols)[:, None] * directions.index_select(0, ray)
+    return rows, cols, points
 
 
 def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:

@@ -472,6 +472,26 @@ class DensityGrid(nn.Module):
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         return occupied_at(self.bits, self.cube, self.warp(points))
 
+    def cells_along(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """For a box warp (affine): (start, step) [n_rays, 3] such that the point at distance t along
+        ray i lies at cell coordinates start_i + t step_i (cell [i, j, k] spans [i, i + 1) x [j, j + 1)
+        x [k, k + 1)), so that a marcher reads the grid (:meth:`occupied_cells`) without forming
+        the points; None for other warps."""
+        if self.warp.kind != "box":
+            return None
+        lo, hi = self.warp.aabb[0], self.warp.aabb[1]
+        scale = self.resolution / (hi - lo)
+        return (origins - lo) * scale, directions * scale
+
+    def occupied_cells(self, coords: torch.Tensor) -> torch.Tensor:
+        """[..., 3] cell coordinates (:meth:`cells_along`) inside the grid -> [...] bool: occupied.
+        A coordinate outside reads the nearest cell (a marcher's samples lie between the box's entry
+        and exit: outside only by rounding)."""
+        r = self.resolution
+        idx = coords.long().clamp_(0, r - 1)
+        flat = (idx[..., 0] * r + idx[..., 1]) * r + idx[..., 2]
+        return self.bits.reshape(-1).index_select(0, flat.reshape(-1)).reshape(flat.shape)
+
     @property
     def occupied_fraction(self) -> float:
         return float(self.bits.float().mean())
