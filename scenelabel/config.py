@@ -413,7 +413,9 @@ PRESETS: dict[str, dict] = {
     "paper": {  # the original NeRF: 8 x 256 with the input again before layer 5
         "field": {**_MLP_FIELD, "hidden": 256, "layers": 8, "skip_layer": 5},
         # hierarchical rendering evaluates every sample of a chunk at once: 4096 rays x 193 samples x 256
-        "sampling": {"grid_resolution": 32, "strategy": "hierarchical", "n_coarse": 64, "n_fine": 128, "chunk_rays": 4096},
+        "sampling": {
+            "grid_resolution": 32, "strategy": "hierarchical", "n_coarse": 64, "n_fine": 128, "chunk_rays": 4096,
+        },
         "train": {**_MLP_TRAIN, "steps": 20000},
     },
     "multihead": {  # the seed's 6-layer variant; colour and class heads separate from the trunk

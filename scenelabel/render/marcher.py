@@ -195,7 +195,9 @@ def render_rays_early_stop(
         as :func:`render_rays` (``field`` with ``features`` and ``heads`` as
         :class:`~scenelabel.fields.model.FieldNetwork`'s); ``min_trans``: the transmittance below
         which a ray stops (0: never, the exact composite); ``segment``: samples per ray evaluated
-        between checks.
+        between checks. An ``occupancy`` with ``cells_along`` (a
+        :class:`~scenelabel.render.sampling.DensityGrid` over a box) is read along the rays, not at
+        every point.
     Returns:
         RayBundleOutput; ``n_evaluated`` counts the samples the trunk evaluated.
     """
