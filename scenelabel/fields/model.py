@@ -144,7 +144,8 @@ class FieldNetwork(nn.Module):
         self.view_encoding = Positional(config.pe_view_frequencies) if config.view_encoding == "positional" else None
         view_dim = SH_DIM if self.view_encoding is None else self.view_encoding.out_dim
         rgb_in = h + (view_dim if config.view_dependent else 0)
-        self.rgb_head = nn.Sequential(nn.Linear(rgb_in, h), nn.ReLU(), nn.Linear(h, 3))
+        # the ReLU overwrites the first layer's output (its backward needs only its own output): no second tensor
+        self.rgb_head = nn.Sequential(nn.Linear(rgb_in, h), nn.ReLU(inplace=True), nn.Linear(h, 3))
         self.class_head = nn.Linear(h, num_classes) if config.class_head == "linear" else None
 
     def encoding_parameters(self) -> list[nn.Parameter]:
