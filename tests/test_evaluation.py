@@ -4,7 +4,7 @@ scored while only those are drawn."""
 import numpy as np
 import pytest
 
-from scenelabel import build, preset, write_toy_scene
+from scenelabel import build, load_scene, preset, write_toy_scene
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.train.evaluation import (
     FINISH_SECONDS,
@@ -36,6 +36,14 @@ def test_a_build_scores_every_held_out_view_and_draws_at_most_panel_views(tmp_pa
     drawn = sorted(p.stem for p in (tmp_path / "out" / "renders").glob("*.png"))
     assert len(scored) == n_test and len(drawn) == PANEL_VIEWS and set(drawn) <= set(scored)
     assert scored[0] in drawn and scored[-1] in drawn
+    # each class's held-out pixels: together every labelled held-out pixel; a class with some has an IoU
+    loaded = load_scene(scene)
+    held_out = [i for i, name in enumerate(loaded.names) if name in scored]
+    classes = list(result.metrics["per_class_iou"])
+    labelled = sum(int(np.isin(loaded.labels[i], [int(c) for c in classes]).sum()) for i in held_out)
+    pixels = result.metrics["per_class_pixels"]
+    assert list(pixels) == classes and sum(pixels.values()) == labelled > 0
+    assert all(result.metrics["per_class_iou"][c] is not None for c in classes if pixels[c] > 0)
 
 
 def _cameras(n: int, width: int, height: int) -> Cameras:

@@ -234,6 +234,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "miou": m.get("miou"),
         "per_class_iou": m.get("per_class_iou"),
         "spurious_classes": m.get("spurious_classes"),
+        "per_class_pixels": m.get("per_class_pixels"),
         "classes": m.get("classes"),
         "render_seconds": statistics.median(v["render_seconds"] for v in m["per_view"]),
         "aabb_source": ckpt["aabb_source"],
@@ -502,13 +503,15 @@ def _per_class(rows: list[dict]) -> list[str]:
     lines = ["## Held-out IoU per class", "",
              "mIoU is the mean over the classes the held-out views show; a class predicted where none "
              "shows it (spurious: its predicted pixels) is left out of the mean (docs/conventions.md, "
-             "'Labels').", ""]
+             "'Labels'). Held-out px: the held-out pixels of that class (the same views for every variant).", ""]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         by_variant = {r["variant"]: r for r in rows if r["scene"] == scene}
         names = next(iter(by_variant.values())).get("classes") or {}
         ids = sorted({int(c) for r in by_variant.values() for c in r["per_class_iou"]})
-        lines += [f"**{scene}**", "", "| class | " + " | ".join(v for v in variants if v in by_variant) + " |",
-                  "|---|" + "---|" * sum(v in by_variant for v in variants)]
+        pixels = next((r["per_class_pixels"] for r in by_variant.values() if r.get("per_class_pixels")), {})
+        shown = [v for v in variants if v in by_variant]
+        lines += [f"**{scene}**", "", "| class | held-out px | " + " | ".join(shown) + " |",
+                  "|---|---|" + "---|" * len(shown)]
         for cid in ids:
             cells = []
             for v in variants:
@@ -517,7 +520,8 @@ def _per_class(rows: list[dict]) -> list[str]:
                 iou = by_variant[v]["per_class_iou"].get(str(cid))
                 spurious = (by_variant[v].get("spurious_classes") or {}).get(str(cid))
                 cells.append("-" if iou is None else f"{iou:.3f}" + (f" (spurious: {spurious} px)" if spurious else ""))
-            lines.append(f"| {cid} {names.get(str(cid), '')} | " + " | ".join(cells) + " |")
+            name = f"{cid} {names.get(str(cid), '')}"
+            lines.append(f"| {name} | {pixels.get(str(cid), '-')} | " + " | ".join(cells) + " |")
         lines.append("")
     return lines
 

@@ -100,6 +100,8 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         metrics["per_class_iou"] = {
             str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
         }
+        # held-out pixels of each true class (labelled, not ignored): how much a class's IoU rests on
+        metrics["per_class_pixels"] = {str(cid): int(n) for cid, n in zip(class_ids.tolist(), conf.sum(1))}
         metrics["spurious_classes"] = {  # predicted on held-out views that do not show them: not in the mean
             str(cid): int(n) for cid, n in zip(class_ids.tolist(), spurious_classes(conf)) if n > 0
         }
