@@ -72,6 +72,13 @@ def rays(n=40, seed=0):
     return origins, directions, t_min, t_max
 
 
+def interval_middles(t_min: float, t_max: float, step: float, n_samples: int) -> torch.Tensor:
+    """The middles of a ray's marched intervals of positive length: steps of ``step`` from t_min, the
+    last cut at t_max, at most n_samples."""
+    starts = torch.arange(n_samples) * step + t_min
+    return (0.5 * (starts + torch.minimum(starts + step, torch.tensor(t_max))))[starts < t_max]
+
+
 def naive_render(field, occupancy, origins, directions, t_min, t_max, step):
     """Float64 loop over rays and samples: uniform steps of ``step`` from t_min, eq. 2 and eq. 7."""
     out_rgb, out_depth, out_probs = [], [], []
@@ -118,8 +125,7 @@ def test_render_rays_evaluates_only_intervals_of_length_in_occupied_space():
     out = render_rays(field, not_left_half, o, d, t_min, t_max, Marching(step, 64))
     expected = 0
     for a, b, origin, direction in zip(t_min.tolist(), t_max.tolist(), o, d):
-        starts = torch.arange(64) * step + a
-        middles = 0.5 * (starts + torch.minimum(starts + step, torch.tensor(b)))[starts < b]
+        middles = interval_middles(a, b, step, 64)
         expected += int(not_left_half(origin + middles[:, None] * direction).sum())
     assert out.n_evaluated == field.calls == expected
     empty = torch.arange(len(t_max)) % 3 == 0
@@ -184,8 +190,7 @@ def test_early_stop_drops_faint_samples_within_the_bound():
     stopped = render_rays_early_stop(field, every_cell, o, d, t_min, t_max, marching, min_trans=min_trans)
     in_slab = 0
     for a, b, origin, direction in zip(t_min.tolist(), t_max.tolist(), o, d):  # slab samples in front of the stop
-        starts = torch.arange(marching.n_samples) * marching.step + a
-        middles = (0.5 * (starts + torch.minimum(starts + marching.step, torch.tensor(b))))[starts < b]
+        middles = interval_middles(a, b, marching.step, marching.n_samples)
         in_slab += int(((origin[0] + middles * direction[0]) > 0.2).sum())
     assert field.head_calls <= in_slab < field.calls  # no haze sample reached the heads
     assert (full.opacity - stopped.opacity).abs().max() <= 2 * min_trans

@@ -514,9 +514,7 @@ def _per_class(rows: list[dict]) -> list[str]:
                   "|---|---|" + "---|" * len(shown)]
         for cid in ids:
             cells = []
-            for v in variants:
-                if v not in by_variant:
-                    continue
+            for v in shown:
                 iou = by_variant[v]["per_class_iou"].get(str(cid))
                 spurious = (by_variant[v].get("spurious_classes") or {}).get(str(cid))
                 cells.append("-" if iou is None else f"{iou:.3f}" + (f" (spurious: {spurious} px)" if spurious else ""))

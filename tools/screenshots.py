@@ -7,9 +7,9 @@ open it in a headless Chromium, answer a point query and render the view, and sa
 Also prints what it measured: the page's ready time after ``scenelabel view BUILD`` is started
 (the command in its own process, the browser already running, as a user's is: the time until a
 screenshot of the page shows every class's colour, taken when that screenshot arrived, polled every
-0.05 s; and when the command printed its URL), the ready time after the
-URL is opened with the server already running in this process, a point query's latency through the API, and a 320 x 240 render
-from the browser's camera with each method.
+0.05 s; and when the command printed its URL), the ready time after the URL is opened with the
+server already running in this process, a point query's latency through the API, and a 320 x 240
+render from the browser's camera with each method.
 Needs a chromium (Debian: ``apt-get install chromium``; tools/setup.sh installs it where it can).
 """
 
@@ -19,6 +19,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,11 @@ def toy_build(work: Path, steps: int) -> Path:
 def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
     """Fraction of pixels within ``tolerance`` (sum of channel differences) of ``color``."""
     return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
+
+
+def shows_every_class(palette: dict, classes: list[int]) -> Callable[[np.ndarray], bool]:
+    """A page's readiness test: every one of ``classes`` covers some of the image in its colour."""
+    return lambda image: all(colour_fraction(image, palette[c]) > 0.001 for c in classes)
 
 
 def page_ready_after_command(browser, build_dir: Path, palette: dict, classes: list[int]) -> tuple[float, float, float]:
@@ -85,7 +91,7 @@ def page_ready_after_command(browser, build_dir: Path, palette: dict, classes: l
                 raise RuntimeError(f"scenelabel view printed no URL (exit {proc.poll()})")
             time.sleep(0.01)
         browser.open(urls[0])
-        browser.wait_for(lambda im: all(colour_fraction(im, palette[c]) > 0.001 for c in classes), timeout=120)
+        browser.wait_for(shows_every_class(palette, classes), timeout=120)
         ready = browser.captured_at - start  # the screenshot that showed it, not the check after it
         loaded.wait(60)
         if "field" not in said:
@@ -125,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             browser.open(url)
             client = app.wait_for_client(60)
-            browser.wait_for(lambda im: all(colour_fraction(im, app.palette[c]) > 0.001 for c in classes), timeout=120)
+            browser.wait_for(shows_every_class(app.palette, classes), timeout=120)
             ready = browser.captured_at - start
             browser.evaluate(DISMISS_SOFTWARE_WEBGL)
 
@@ -146,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             view = camera_pose(client.camera)
             time.sleep(1.0)
             browser.evaluate(DISMISS_SOFTWARE_WEBGL)
-            image = browser.wait_for(lambda im: all(colour_fraction(im, app.palette[c]) > 0.001 for c in classes), 60)
+            image = browser.wait_for(shows_every_class(app.palette, classes), 60)
         # the same view again with no browser drawing (SwiftShader WebGL takes CPU from the field)
         alone = {method: app.render_view(*view, method=method).seconds for method in methods}
     finally:

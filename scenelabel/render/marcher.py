@@ -216,7 +216,7 @@ def render_rays_early_stop(
         if active.numel() == 0:
             break
         stop = min(start + segment, n_cols)
-        ts, te = t_starts[:, start:stop].index_select(0, active), t_ends[:, start:stop].index_select(0, active)  # [A, s]
+        ts, te = (t[:, start:stop].index_select(0, active) for t in (t_starts, t_ends))  # [A, s]
         rows, cols, points = _occupied_samples(occupancy, cells, (origins, directions), active, (ts, te))
         sigmas, h, raw = field.features(points)
         n_evaluated += len(rows)
@@ -291,7 +291,7 @@ def _render_intervals(field, origins, directions, intervals, limits, options):
     """Evaluate ``field`` at every interval of positive length and composite: (RayBundleOutput,
     σ [n_rays, S] with 0 at the empty intervals)."""
     t_starts, t_ends = intervals
-    points = _points(origins, directions, t_starts, t_ends)  # [n_rays, S, 3]
+    points = _points(origins, directions, 0.5 * (t_starts + t_ends))  # [n_rays, S, 3]
     rows, cols = (t_ends > t_starts).nonzero(as_tuple=True)
     samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
     out = _composite(field, (rows, cols), intervals, samples, limits, options)
@@ -306,7 +306,7 @@ def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
     (origins, directions), (ts, te) = rays, intervals
     t_mids = 0.5 * (ts + te)
     if cells is None:
-        points = _points(origins.index_select(0, active), directions.index_select(0, active), ts, te)
+        points = _points(origins.index_select(0, active), directions.index_select(0, active), t_mids)
         rows, cols = ((te > ts) & occupancy(points)).nonzero(as_tuple=True)
         return rows, cols, points[rows, cols]
     start, step = (c.index_select(0, active) for c in cells)
@@ -317,9 +317,8 @@ def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
     return rows, cols, points
 
 
-def _points(origins: torch.Tensor, directions: torch.Tensor, t_starts: torch.Tensor, t_ends: torch.Tensor) -> torch.Tensor:
-    """Sample points at the interval middles: [n_rays, S, 3]."""
-    t_mids = 0.5 * (t_starts + t_ends)
+def _points(origins: torch.Tensor, directions: torch.Tensor, t_mids: torch.Tensor) -> torch.Tensor:
+    """Sample points at distances t_mids [n_rays, S] (the interval middles): [n_rays, S, 3]."""
     return origins[:, None, :] + t_mids[..., None] * directions[:, None, :]
 
 
