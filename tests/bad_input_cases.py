@@ -81,6 +81,12 @@ def _classes_malformed(tmp):
     return build_args(scene)
 
 
+def _free_index_is_a_class(tmp):
+    scene = toy(tmp)
+    edit_json(scene / "classes.json", lambda d: d.update(free_index=d["classes"][0]["id"]))
+    return build_args(scene)
+
+
 def _transforms_schema(tmp):
     scene = toy(tmp)
     edit_json(scene / "transforms.json", lambda d: d["frames"][0].pop("transform_matrix"))
@@ -347,6 +353,7 @@ CASES = [
     Case("label map size differs from the image", _label_size, ("001.png",)),
     Case("label id not in classes.json", _label_id_unknown, ("002.png", "42")),
     Case("classes.json malformed", _classes_malformed, ("classes.json",)),
+    Case("classes.json free_index is a class id", _free_index_is_a_class, ("classes.json", "free_index")),
     Case("transforms.json fails its schema", _transforms_schema, ("transforms.json", "transform_matrix")),
     Case("non-finite pose", _non_finite_pose, ("transforms.json",)),
     Case("non-rigid pose", _non_rigid_pose, ("transforms.json",)),

@@ -1,10 +1,13 @@
 """scenelabel.train.evaluation: which held-out views a build draws, and that every held-out view is
 scored while only those are drawn."""
 
+import json
+
 import numpy as np
 import pytest
 
 from scenelabel import build, load_scene, preset, write_toy_scene
+from scenelabel.codes import FREE
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.train.evaluation import (
     FINISH_SECONDS,
@@ -58,3 +61,20 @@ def test_expected_finish_seconds_count_the_pixels_rendered_and_the_panels_drawn(
     many = expected_finish_seconds(_cameras(19, 160, 120), True)  # every view rendered, PANEL_VIEWS drawn
     assert many == pytest.approx(FINISH_SECONDS + 19 * RENDER_SECONDS_PER_MEGAPIXEL * 0.0192 + PANEL_VIEWS * PANEL_SECONDS)
     assert expected_finish_seconds(_cameras(1, 640, 480), False) == pytest.approx(FINISH_SECONDS + RENDER_SECONDS_PER_MEGAPIXEL * 0.3072)
+
+
+def test_free_pixels_are_scored_as_a_class_that_rays_without_a_hit_predict(tmp_path):
+    """classes.json's free_index marks the toy's backdrop FREE: the held-out scores count FREE as
+    one more class ("-1"), on every backdrop pixel, and a short build leaves those rays empty."""
+    scene = write_toy_scene(tmp_path / "scene", n_train=14, n_test=2, width=32, height=24)
+    classes = json.loads((scene / "classes.json").read_text())
+    (scene / "classes.json").write_text(json.dumps({**classes, "ignore_index": None, "free_index": 255}))
+    config = preset("quick", {"train": {"steps": 300}, "output": {"write_map": False, "write_renders": False}})
+    metrics = build(scene, tmp_path / "out", config, progress=False).metrics
+    loaded = load_scene(scene)
+    held_out = [loaded.names.index(v["view"]) for v in metrics["per_view"]]
+    free_pixels = sum(int(np.sum(loaded.labels[i] == FREE)) for i in held_out)
+    assert metrics["per_class_pixels"][str(FREE)] == free_pixels > 0
+    assert list(metrics["per_class_iou"])[0] == str(FREE) and str(FREE) not in metrics["spurious_classes"]
+    assert metrics["per_class_iou"][str(FREE)] > 0.9, metrics["per_class_iou"]
+    assert metrics["miou"] > 0.85, metrics["per_class_iou"]

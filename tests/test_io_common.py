@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from scenelabel import write_toy_scene
+from scenelabel.codes import FREE
 from scenelabel.data.io import load_scene
 from scenelabel.data.io.common import (
     check_downscale,
@@ -184,6 +186,21 @@ def test_read_classes_valid(tmp_path: Path) -> None:
     assert parsed.ignore_index == 255
     assert parsed.colors == {0: (1, 2, 3)}
     assert read_classes(_write_classes(tmp_path, {"classes": [{"id": 1, "name": "a"}]})).ignore_index is None
+    with_free = {"classes": [{"id": 1, "name": "a"}], "free_index": 0}
+    assert read_classes(_write_classes(tmp_path, with_free)).free_index == 0
+
+
+def test_free_index_pixels_load_as_free(tmp_path: Path) -> None:
+    """classes.json's free_index (the toy's backdrop, 255, here) is read as FREE; the class ids stay."""
+    scene = write_toy_scene(tmp_path / "toy", n_train=7, n_test=1, width=24, height=18)
+    original = load_scene(scene)
+    data = json.loads((scene / "classes.json").read_text())
+    _write_classes(scene, {**data, "ignore_index": None, "free_index": 255})
+    loaded = load_scene(scene)
+    assert loaded.ignore_index is None
+    for before, after in zip(original.labels, loaded.labels):
+        np.testing.assert_array_equal(after, np.where(before == 255, FREE, before))
+    assert any(np.any(label == FREE) for label in loaded.labels)
 
 
 @pytest.mark.parametrize(
@@ -191,6 +208,9 @@ def test_read_classes_valid(tmp_path: Path) -> None:
     [
         ({"classes": [{"id": 0, "name": "a"}, {"id": 0, "name": "b"}]}, r"\[\$\.classes\[1\]\.id\].*appears twice"),
         ({"classes": [{"id": 255, "name": "a"}], "ignore_index": 255}, r"ignore_index 255 is also a class id"),
+        ({"classes": [{"id": 0, "name": "a"}], "free_index": 0}, r"free_index 0 is also a class id"),
+        ({"classes": [{"id": 0, "name": "a"}], "ignore_index": 9, "free_index": 9},
+         r"free_index 9 is also the ignore_index"),
         ({"classes": [{"id": 0}]}, r"\$\.classes\[0\].*'name' is a required property"),
         ({"classes": [{"id": 0, "name": "a", "color": [1, 2]}]}, r"\$\.classes\[0\]\.color.*too short"),
         ({"classes": [{"id": 40000, "name": "a"}]}, r"\$\.classes\[0\]\.id.*32767"),

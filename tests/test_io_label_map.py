@@ -26,7 +26,7 @@ def test_map_ids_reference_loop():
     labels = rng.integers(-1, 160, (40, 30))
     mapping = {int(k): int(v) for k, v in zip(rng.choice(150, 40, replace=False), rng.integers(0, 5, 40))}
     got = map_ids(labels, mapping, 255)
-    ref = np.array([[mapping.get(int(x), 255) if x >= 0 else 255 for x in row] for row in labels])
+    ref = np.array([[mapping.get(int(x), 255) if x >= 0 else -1 for x in row] for row in labels])  # FREE stays
     np.testing.assert_array_equal(got, ref)
 
 

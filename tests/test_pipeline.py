@@ -219,3 +219,30 @@ def test_auto_distortion_follows_how_well_the_views_see_the_scene():
     fixed = preset("quick", {"train": {"distortion_weight": 0.01}})
     config, record = resolve_distortion(fixed, 0.9)
     assert config.train.distortion_weight == 0.01 and record["why"] == "as configured"
+
+
+def test_an_object_capture_without_bounds_is_bounded_by_its_silhouettes(tmp_path):
+    """The toy's two boxes without the floor, no near/far, no aabb, the backdrop labelled FREE
+    (classes.json's free_index): every view shows the object whole, so the bounds are the
+    silhouettes' visual hull (no coarse fit): the boxes, all of them, in a box little larger."""
+    import dataclasses
+
+    from scenelabel.data.synthetic import toy_cameras
+    from scenelabel.train.pipeline import prepare_training, silhouette_points, silhouettes
+
+    boxes = dataclasses.replace(toy_scene_geometry(), boxes=toy_scene_geometry().boxes[1:])
+    path = write_scene(tmp_path / "boxes", boxes, toy_cameras(16, 0), 48, 36, bounds_in_file=False)
+    classes = json.loads((path / "classes.json").read_text())
+    (path / "classes.json").write_text(json.dumps({**classes, "ignore_index": None, "free_index": 255}))
+    scene = load_scene(path)
+    _, static, _ = prepare_training(scene, preset("quick"), torch.device("cpu"))
+    assert static["aabb_source"].startswith("silhouettes (visual hull)")
+    aabb, exact = np.asarray(static["aabb_world"]), boxes.bounds
+    assert np.all(aabb[0] <= exact[0]) and np.all(aabb[1] >= exact[1])
+    assert np.prod(aabb[1] - aabb[0]) < 4.0 * np.prod(exact[1] - exact[0])
+    # an image's alpha is its silhouette before its labels; a view cut by the image edge: no hull
+    masks = silhouettes(dataclasses.replace(scene, image_alphas=[None] * (len(scene) - 1) + [np.ones((36, 48))]),
+                        [0, len(scene) - 1])
+    assert np.array_equal(masks[0], scene.labels[0] != -1) and masks[1].all()
+    cut = [np.where(np.arange(48) < 24, 3, label) for label in scene.labels]  # the left half shows box_red
+    assert silhouette_points(dataclasses.replace(scene, labels=cut), list(range(len(scene)))) is None

@@ -21,6 +21,16 @@ def test_only_present_classes_get_channels():
     np.testing.assert_array_equal(cm.ids_from_channels(np.array([1, 0, -1, -2])), [7, 3, -1, -2])
 
 
+def test_free_pixels_get_no_channel():
+    """FREE (classes.json's free_index: the ray meets nothing) is no class: no channel, no loss."""
+    labels = [np.array([[3, -1], [-1, 255]])]
+    cm = ClassMap.from_labels(labels, CLASSES, ignore_index=255)
+    assert cm.ids.tolist() == [3]
+    np.testing.assert_array_equal(cm.channels_from_ids(labels[0]), [[0, -1], [-1, -1]])
+    with pytest.raises(InputError, match="no labelled pixel"):
+        ClassMap.from_labels([np.array([-1, 255])], CLASSES, ignore_index=255)
+
+
 def test_unknown_label_id_and_no_labels_are_errors():
     with pytest.raises(InputError, match=r"label ids \[42\] are not in classes.json"):
         ClassMap.from_labels([np.array([42])], CLASSES)

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from scenelabel import SemanticField, TrainingError, build, load_scene, preset, write_toy_scene
+from scenelabel.codes import FREE
 from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.rays import rays_from_cameras
@@ -310,6 +311,27 @@ def test_masked_pixels_give_no_training_rays(scene):
     # the rays kept are the left halves: the same rgb targets as the unmasked scene's left halves
     keep = torch.as_tensor(np.concatenate([m.reshape(-1) for i, m in enumerate(masks) if i % 8]))
     torch.testing.assert_close(half.rays.rgb, full.rays.rgb[keep])
+
+
+def test_free_pixels_of_opaque_views_train_transparency(scene):
+    """A FREE pixel (its ray meets nothing) of a view without alpha gets alpha 0 and no class; where a
+    view has its own alpha, that alpha rules."""
+    loaded = load_scene(scene)
+    free = [np.where(label == 255, FREE, label) for label in loaded.labels]
+    freed = dataclasses.replace(loaded, labels=free, ignore_index=None)
+    train = [i for i in range(len(loaded)) if i % 8]
+    data, _, _ = prepare_training(freed, preset("quick"), torch.device("cpu"))
+    is_free = torch.as_tensor(np.concatenate([free[i].reshape(-1) == FREE for i in train]))
+    assert is_free.any() and (~is_free).any()
+    torch.testing.assert_close(data.rays.alpha, (~is_free).float())
+    assert torch.all(data.rays.channels[is_free] == -1) and torch.all(data.rays.channels[~is_free] >= 0)
+    own = [np.full(label.shape, 0.25, np.float32) for label in free]
+    with_alpha, _, _ = prepare_training(
+        dataclasses.replace(freed, image_alphas=own), preset("quick"), torch.device("cpu")
+    )
+    torch.testing.assert_close(with_alpha.rays.alpha, torch.full_like(with_alpha.rays.alpha, 0.25))
+    full, _, _ = prepare_training(loaded, preset("quick"), torch.device("cpu"))
+    assert full.rays.alpha is None  # opaque views without FREE pixels: no alpha at all
 
 
 def test_sensor_depth_bounds_the_scene_without_a_coarse_fit(scene, monkeypatch):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scenelabel.codes import FREE
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 
@@ -41,7 +42,9 @@ class Scene:
         cameras: one camera per view.
         names: [n] view names (image file stems).
         images: n arrays [h, w, 3] float32 in [0, 1].
-        labels: n arrays [h, w] int64 of external class ids, or None for an unlabelled view.
+        labels: n arrays [h, w] int64 of external class ids (``ignore_index`` for an unlabelled pixel,
+            FREE = -1 for a pixel whose ray meets nothing, classes.json's ``free_index``), or None for
+            an unlabelled view.
         depths: n arrays [h, w] float32 ground-truth depth along the unit ray, or None.
         classes: the full vocabulary of classes.json: external id -> name.
         ignore_index: the label value of unlabelled pixels, or None.
@@ -157,12 +160,13 @@ class ClassMap:
     def from_labels(
         labels: list[np.ndarray | None], classes: dict[int, str], ignore_index: int | None = None
     ) -> "ClassMap":
-        """The classes of ``classes`` that occur in ``labels`` (ignore_index excluded)."""
+        """The classes of ``classes`` that occur in ``labels`` (ignore_index and FREE excluded)."""
         present: set[int] = set()
         for label in labels:
             if label is not None:
                 present.update(np.unique(label).tolist())
         present.discard(ignore_index)
+        present.discard(FREE)
         unknown = sorted(present - set(classes))
         if unknown:
             raise InputError(f"label ids {unknown} are not in classes.json")
@@ -172,7 +176,7 @@ class ClassMap:
         return ClassMap(ids=ids, names=tuple(classes[i] for i in ids.tolist()), ignore_index=ignore_index)
 
     def channels_from_ids(self, labels: np.ndarray) -> np.ndarray:
-        """Map external ids to channels; ignore_index (and ids without a channel) -> -1.
+        """Map external ids to channels; ignore_index, FREE (and ids without a channel) -> -1.
 
         Args:
             labels: int array of external ids, any shape.

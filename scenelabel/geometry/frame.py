@@ -135,7 +135,7 @@ def aabb_from_cameras(
     if observed is not None:
         clipped = np.stack([np.maximum(observed[0], frusta[0]), np.minimum(observed[1], frusta[1])])
         if np.all(clipped[1] > clipped[0]):
-            return clipped, f"{points_source} ({len(points)} surface points; the input has no near/far or aabb)"
+            return clipped, f"{points_source} ({len(points)} points; the input has no near/far or aabb)"
     return frusta, source
 
 

@@ -1,7 +1,7 @@
 """Codes and constants of the occupancy map format, and the uint8 quantisation (numpy only).
 
-Label codes (:data:`FREE`, :data:`UNKNOWN`), format name and version, array and group names,
-dtypes, defaults, pyramid limits; :func:`uint8_from_unit` / :func:`unit_from_uint8` (the codes of
+Label codes (:data:`FREE`, :data:`UNKNOWN`, from :mod:`scenelabel.codes`), format name and version,
+array and group names, dtypes, defaults, pyramid limits; :func:`uint8_from_unit` / :func:`unit_from_uint8` (the codes of
 ``probs``, ``confidence`` and quantised opacities) and :func:`confidence_from_probs`.
 """
 
@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from scenelabel.codes import FREE, UNKNOWN
 from scenelabel.errors import InputError
 from scenelabel.geometry.lattice import DEFAULT_CHUNKS
 
@@ -57,12 +58,6 @@ __all__ = [
     "unit_from_uint8",
     "confidence_from_probs",
 ]
-
-FREE = -1
-"""Label code of space modelled as empty."""
-UNKNOWN = -2
-"""Label code of unobserved space: outside the modelled bounds, or (``unknown_rule``
-"visibility") seen by no training camera."""
 
 FORMAT_NAME = "scenelabel.occupancy_map"
 FORMAT_VERSION = 2

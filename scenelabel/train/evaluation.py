@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scenelabel.codes import FREE
 from scenelabel.config import render_background
 from scenelabel.data.scene import UNLABELLED_NAME, Scene
 from scenelabel.geometry.cameras import Cameras
@@ -54,8 +55,13 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     """Held-out metrics (and renders): PSNR, SSIM, mIoU, depth error, per view and per class, and
     each view's render time. A ground-truth image with alpha (``scene.image_alphas``) is composited on the
     colour the render composites on (:func:`scenelabel.config.render_background`: white after
-    "random" training). With ``renders_dir``, the panels of :func:`panel_views` of ``test``."""
-    class_ids = field.class_ids
+    "random" training). With ``renders_dir``, the panels of :func:`panel_views` of ``test``.
+
+    Where the held-out labels hold FREE (classes.json's ``free_index``: the ray meets nothing), FREE is
+    scored as one more class (``per_class_iou["-1"]``), and a render's rays without a hit (FREE, or
+    UNKNOWN for a ray that never enters the modelled bounds) predict it."""
+    scores_free = any(scene.labels[i] is not None and bool(np.any(scene.labels[i] == FREE)) for i in test)
+    class_ids = np.concatenate([[FREE], field.class_ids]) if scores_free else field.class_ids
     background = render_background(field.config.train.background)
     background, ignore = None if background is None else np.asarray(background, np.float32), scene.ignore_index
     conf = np.zeros((len(class_ids), len(class_ids) + 1), dtype=np.int64)
@@ -74,9 +80,10 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
         label = scene.labels[i]
         if label is not None:
-            view_conf = confusion_matrix(out.label, label, class_ids, ignore)
+            no_hit = FREE if scores_free else None  # what a ray without a hit predicts (None: it stays wrong)
+            view_conf = confusion_matrix(_no_hit_as(out.label, no_hit), label, class_ids, ignore)
             conf += view_conf
-            conf_smooth += confusion_matrix(smoothed_label, label, class_ids, ignore)
+            conf_smooth += confusion_matrix(_no_hit_as(smoothed_label, no_hit), label, class_ids, ignore)
             view["miou"] = miou(view_conf)[0]
         depth = scene.depths[i]
         if depth is not None:
@@ -112,3 +119,8 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         }
     metrics["per_view"] = per_view
     return metrics
+
+
+def _no_hit_as(label: np.ndarray, code: int | None) -> np.ndarray:
+    """``label`` with every code of a ray without a hit (FREE, UNKNOWN) replaced by ``code`` (None: as is)."""
+    return label if code is None else np.where(label < 0, code, label)

@@ -28,6 +28,7 @@ import torch
 
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
+from scenelabel.codes import FREE
 from scenelabel.config import (
     AUTO,
     BUILD_SECONDS_WITH_DEPTH,
@@ -47,7 +48,7 @@ from scenelabel.errors import CheckpointError, InputError, TrainingError, Traini
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_to_dict
-from scenelabel.geometry.coverage import THIN_VIEWS, thinly_seen_fraction
+from scenelabel.geometry.coverage import THIN_VIEWS, shows_whole, thinly_seen_fraction, visual_hull_points
 from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.rays import rays_from_cameras
@@ -258,8 +259,9 @@ def observed_points(
     (:func:`scenelabel.render.volume.depth_at_transmittance`, the surface as the maps define it) and
     its largest weight (:func:`scenelabel.render.volume.depth_of_max_weight`): a young field's fog in
     front of a far wall moves the first (and the expected depth) short of the wall, and a faint
-    wall behind fog moves the second. For inputs without near/far or a box (a
-    nerfstudio transforms.json never carries them), whose frusta reach far past the scene.
+    wall behind fog moves the second. Rays whose image shows them meeting nothing (alpha below 0.5:
+    an RGBA image's background, a FREE label) are not marched. For inputs without near/far or a box
+    (a nerfstudio transforms.json never carries them), whose frusta reach far past the scene.
 
     Returns:
         [k, 3] world points.
@@ -282,7 +284,11 @@ def observed_points(
         )
     trainer.run(progress=progress)
     generator = torch.Generator().manual_seed(tc.seed)
-    pick = trainer.ray_pool[torch.randint(len(trainer.ray_pool), (BOUNDS_RAYS,), generator=generator).to(device)]
+    pool = trainer.ray_pool
+    if trainer.rays.alpha is not None:  # a ray its image shows meeting nothing (alpha < 0.5, FREE) observes nothing
+        seen = pool[trainer.rays.alpha[pool] >= 0.5]
+        pool = seen if len(seen) else pool
+    pick = pool[torch.randint(len(pool), (BOUNDS_RAYS,), generator=generator).to(device)]
     o, d, model = trainer.rays.origins[pick], trainer.rays.directions[pick], trainer.model
     with torch.no_grad():
         t_min, t_max = model.warp.clip(o, d, trainer.rays.t_min[pick], trainer.rays.t_max[pick])
@@ -351,6 +357,39 @@ def sensor_depth_points(scene: Scene, train_idx: list[int], seed: int = 0) -> np
     return points
 
 
+def silhouettes(scene: Scene, indices: list[int]) -> list[np.ndarray | None]:
+    """Per view of ``indices``: [h, w] bool, True where the image shows something (alpha >= 0.5 where
+    the image has alpha, else a label other than FREE where the view's labels hold FREE), or None
+    where the view does not say where nothing is."""
+    out: list[np.ndarray | None] = []
+    for i in indices:
+        alpha = None if scene.image_alphas is None else scene.image_alphas[i]
+        label = scene.labels[i]
+        if alpha is not None:
+            out.append(alpha >= 0.5)
+        elif label is not None and np.any(label == FREE):
+            out.append(label != FREE)
+        else:
+            out.append(None)
+    return out
+
+
+def silhouette_points(scene: Scene, train_idx: list[int]) -> np.ndarray | None:
+    """An object capture's bounds without a coarse fit: where every training view has a silhouette
+    (:func:`silhouettes`: the images' alpha or FREE labels) that shows its object whole
+    (:func:`scenelabel.geometry.coverage.shows_whole`), their visual hull in the camera frusta
+    (:func:`scenelabel.geometry.coverage.visual_hull_points`).
+
+    Returns:
+        [k, 3] world points, or None (not every view shows an object whole, or nothing is left).
+    """
+    masks = silhouettes(scene, train_idx)
+    if not all(m is not None and shows_whole(m) for m in masks):
+        return None
+    frusta, _ = aabb_from_cameras(scene.cameras)
+    return visual_hull_points(scene.cameras[train_idx], masks, frusta)
+
+
 def prepare_training(
     scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext(), progress: bool = False
 ) -> tuple[Trainer, dict, list[int]]:
@@ -358,8 +397,10 @@ def prepare_training(
 
     Seeds every random generator with ``config.train.seed`` first, so every data-parallel rank
     starts from the same field. Bounds: the input's box; else, where the input has no near/far,
-    the observed geometry (:func:`observed_points`, :func:`scenelabel.geometry.frame.aabb_from_cameras`);
-    else the camera frusta over near/far. Data-parallel ranks take rank 0's bounds.
+    the observed geometry: sensor depth (:func:`sensor_depth_points`), else the silhouettes' hull
+    (:func:`silhouette_points`), else a coarse fit (:func:`observed_points`), bounded by
+    :func:`scenelabel.geometry.frame.aabb_from_cameras`; else the camera frusta over near/far.
+    Data-parallel ranks take rank 0's bounds.
     """
     _seed_everything(config.train.seed)
 
@@ -368,9 +409,11 @@ def prepare_training(
     points, seen_by, thinly_seen = None, scene.info.get(DEPTH_SOURCE_KEY, "sensor depth"), None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
         points = sensor_depth_points(scene, train_idx)
-        if points is None:  # no training view has sensor depth
-            points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
-            seen_by = "observed geometry"
+        if points is None:  # no training view has sensor depth: the silhouettes' hull, else a coarse fit
+            points, seen_by = silhouette_points(scene, train_idx), "silhouettes (visual hull)"
+            if points is None:
+                points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
+                seen_by = "observed geometry"
             thinly_seen = thinly_seen_fraction(scene.cameras[train_idx], points)
             if context.distributed:  # every rank trains with rank 0's choice
                 thinly_seen = float(broadcast_array(np.array([thinly_seen]), device)[0])

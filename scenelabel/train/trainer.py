@@ -18,6 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from scenelabel.codes import FREE
 from scenelabel.config import AUTO, RANDOM_BACKGROUND, BuildConfig, resolve_by_depth
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
@@ -134,7 +135,9 @@ def rays_for_views(
     """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far.
 
     Pixels a view's mask excludes (``scene.masks``) give no ray; sensor depths
-    (``scene.sensor_depths``) become ``depth`` in the normalised frame.
+    (``scene.sensor_depths``) become ``depth`` in the normalised frame. A FREE pixel (its ray meets
+    nothing) of a view without alpha gets alpha 0: its colour target is the background, so the ray
+    learns to stay transparent; a view's own alpha rules where it has one.
     """
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha")}
     sensor = scene.sensor_depths
@@ -152,6 +155,8 @@ def rays_for_views(
         label = scene.labels[i]
         parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
         alpha = None if scene.image_alphas is None else scene.image_alphas[i]
+        if alpha is None and label is not None:
+            alpha = (label != FREE).astype(np.float32)
         parts["alpha"].append(np.ones(n, np.float32) if alpha is None else alpha.reshape(-1))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     if scene.masks is not None:  # a masked-out pixel gives no training ray
@@ -173,7 +178,7 @@ def rays_for_views(
         rgb=torch.as_tensor(cat["rgb"], dtype=torch.float32),
         channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
         depth=None if sensor is None else torch.as_tensor(cat["depth"], dtype=torch.float32),
-        alpha=None if scene.image_alphas is None else torch.as_tensor(cat["alpha"], dtype=torch.float32),
+        alpha=None if np.all(cat["alpha"] == 1) else torch.as_tensor(cat["alpha"], dtype=torch.float32),
     )
 
 

@@ -396,7 +396,8 @@ def _metrics_text(metrics: Mapping[str, Any], classes: Mapping[int, str]) -> str
     if per_class:
         lines += ["", "| class | IoU |", "|---|---|"]
         for cid, iou in per_class.items():
-            lines.append(f"| {classes.get(int(cid), cid)} | {'-' if iou is None else f'{iou:.3f}'} |")
+            name = "FREE" if int(cid) == FREE else classes.get(int(cid), cid)  # FREE: held-out pixels that see nothing
+            lines.append(f"| {name} | {'-' if iou is None else f'{iou:.3f}'} |")
     return "\n".join(lines)
 
 

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from scenelabel.codes import FREE
 from scenelabel.data.scene import Scene
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -178,11 +179,13 @@ class ClassesFile:
         classes: external class id -> name (the full vocabulary).
         ignore_index: label value of unlabelled pixels, or None.
         colors: external class id -> (r, g, b) for the classes that give one.
+        free_index: label value of pixels whose ray meets nothing (read as FREE), or None.
     """
 
     classes: dict[int, str]
     ignore_index: int | None
     colors: dict[int, tuple[int, int, int]]
+    free_index: int | None = None
 
 
 def read_classes(path: Path) -> ClassesFile:
@@ -198,10 +201,11 @@ def read_classes(path: Path) -> ClassesFile:
 
 
 def classes_from_json(data: dict, path: Path) -> ClassesFile:
-    """The vocabulary of validated classes.json-style data (``classes``, optional ``ignore_index``).
+    """The vocabulary of validated classes.json-style data (``classes``, optional ``ignore_index`` and
+    ``free_index``).
 
     Raises:
-        InputError: duplicate ids, or ignore_index equal to a class id.
+        InputError: duplicate ids, ignore_index or free_index equal to a class id, or to each other.
     """
     classes: dict[int, str] = {}
     colors: dict[int, tuple[int, int, int]] = {}
@@ -215,7 +219,11 @@ def classes_from_json(data: dict, path: Path) -> ClassesFile:
     ignore_index = data.get("ignore_index")
     if ignore_index is not None and ignore_index in classes:
         raise InputError(f"ignore_index {ignore_index} is also a class id", path, field="$.ignore_index")
-    return ClassesFile(classes=classes, ignore_index=ignore_index, colors=colors)
+    free_index = data.get("free_index")
+    if free_index is not None and (free_index in classes or free_index == ignore_index):
+        what = "a class id" if free_index in classes else "the ignore_index"
+        raise InputError(f"free_index {free_index} is also {what}", path, field="$.free_index")
+    return ClassesFile(classes=classes, ignore_index=ignore_index, colors=colors, free_index=free_index)
 
 
 # --------------------------------------------------------------------------------------------
@@ -425,10 +433,11 @@ def read_depth(path: Path, expected_size: tuple[int, int], size: tuple[int, int]
     return np.ascontiguousarray(depth)
 
 
-def check_label_ids(label: np.ndarray, classes: dict[int, str], ignore_index: int | None, path: Path) -> None:
-    """Raise InputError naming ``path`` and the ids if ``label`` has ids not in classes.json."""
-    present = set(np.unique(label).tolist())
-    present.discard(ignore_index)
+def check_label_ids(label: np.ndarray, vocabulary: ClassesFile, path: Path) -> None:
+    """Raise InputError naming ``path`` and the ids if ``label`` has ids not in classes.json (its
+    classes, ignore_index or free_index)."""
+    present = set(np.unique(label).tolist()) - {vocabulary.ignore_index, vocabulary.free_index}
+    classes = vocabulary.classes
     unknown = sorted(present - set(classes))
     if unknown:
         shown = unknown[:20]
@@ -533,7 +542,7 @@ class ViewData(NamedTuple):
     """What :func:`read_view` read of one view."""
 
     image: np.ndarray  # [h, w, 3] float32 in [0, 1]
-    label: np.ndarray | None  # [h, w] int64 external class ids
+    label: np.ndarray | None  # [h, w] int64 external class ids, FREE where classes.json's free_index
     depth: np.ndarray | None  # [h, w] float32 ground-truth depth along the unit ray
     alpha: np.ndarray | None  # [h, w] float32 in [0, 1]; None: opaque
 
@@ -546,10 +555,11 @@ def read_view(view: ViewFiles, file_size: tuple[int, int], size: tuple[int, int]
         file_size: (width, height) of the image file; label and depth must have this size.
         size: (width, height) wanted: images and alpha are area-resampled
             (:func:`read_image_alpha`), labels and depths nearest.
-        vocabulary: classes.json; label ids must be among its classes (or its ignore_index).
+        vocabulary: classes.json; label ids must be among its classes (or its ignore_index or
+            free_index).
     Returns:
-        ViewData: image [h, w, 3] float32 in [0, 1]; label [h, w] int64 or None; depth [h, w]
-        float32 or None; alpha [h, w] float32 or None.
+        ViewData: image [h, w, 3] float32 in [0, 1]; label [h, w] int64 (free_index read as FREE) or
+        None; depth [h, w] float32 or None; alpha [h, w] float32 or None.
     """
     target = None if tuple(size) == tuple(file_size) else size
     image, alpha = read_image_alpha(view.image, target)
@@ -557,9 +567,11 @@ def read_view(view: ViewFiles, file_size: tuple[int, int], size: tuple[int, int]
     if view.label is not None:
         label = read_label(view.label, file_size)
         # check at file resolution: nearest resampling could hide a stray id
-        check_label_ids(label, vocabulary.classes, vocabulary.ignore_index, view.label)
+        check_label_ids(label, vocabulary, view.label)
         if target is not None:
             label = np.ascontiguousarray(resize_nearest(label, *target))
+        if vocabulary.free_index is not None:
+            label[label == vocabulary.free_index] = FREE
     depth = None if view.depth is None else read_depth(view.depth, file_size, target)
     return ViewData(image, label, depth, alpha)
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scenelabel.codes import FREE
 from scenelabel.data.io.common import ClassesFile, classes_from_json, load_json, validate_json
 from scenelabel.data.scene import Scene
 from scenelabel.errors import InputError
@@ -91,10 +92,11 @@ def apply_label_map(scene: Scene, label_map: LabelMap) -> Scene:
 
 
 def map_ids(labels: np.ndarray, mapping: dict[int, int], unmapped: int) -> np.ndarray:
-    """[...] int ids -> [...] int64 through ``mapping``; ids it lacks (and negatives) -> ``unmapped``."""
+    """[...] int ids -> [...] int64 through ``mapping``; FREE stays FREE; ids it lacks (and other
+    negatives) -> ``unmapped``."""
     labels = np.asarray(labels, dtype=np.int64)
     top = max(int(labels.max(initial=0)), max(mapping)) + 1
     lut = np.full(top, unmapped, dtype=np.int64)
     for src, dst in mapping.items():
         lut[src] = dst
-    return np.where(labels >= 0, lut[labels.clip(0, top - 1)], unmapped)
+    return np.where(labels >= 0, lut[labels.clip(0, top - 1)], np.where(labels == FREE, FREE, unmapped))
