@@ -14,6 +14,7 @@ from scenelabel.errors import InputError
 
 __all__ = [
     "BOX_DISTANCE_CHUNK_PAIRS",
+    "COMMON_CLASS_SHARE",
     "FREE_PROBE_MARGIN",
     "FSCORE_THRESHOLD",
     "SURFACE_PROBE_BEHIND",
@@ -122,7 +123,14 @@ def confusion_matrix(
     return np.bincount(flat, minlength=C * (C + 1)).astype(np.int64).reshape(C, C + 1)
 
 
-def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
+COMMON_CLASS_SHARE = 0.001
+"""The share of the labelled held-out pixels a class needs to enter ``miou_common`` (``metrics.json``):
+the classes that cover at least 0.1 % of them. A class below it rests its IoU on a few dozen pixels
+at 160x120 (a lamp's pole in a large room: whether single pixel centres hit a pole narrower than
+their footprint), so its IoU swings from run to run. The measure of the office scan in issue 20."""
+
+
+def miou(confusion: np.ndarray, min_share: float = 0.0) -> tuple[float, np.ndarray]:
     """Mean intersection over union from a [C, C + 1] confusion matrix (or a plain [C, C] one).
 
     IoU_c = TP / (TP + FP + FN) for every class; NaN for a class absent from both target and
@@ -132,7 +140,8 @@ def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
     pixels count against the classes they truly belong to (as their false negatives), but it does
     not enter the mean with the weight of a whole class. On the few held-out views of a room, that
     weight made the mean hinge on a handful of stray pixels of a class no held-out view shows.
-    :func:`spurious_classes` names such classes.
+    :func:`spurious_classes` names such classes. With ``min_share``, the mean is over the classes
+    that hold at least that share of the target's pixels (:data:`COMMON_CLASS_SHARE`).
 
     Returns:
         (mean IoU, NaN when the target holds no class; [C] per-class IoU).
@@ -146,7 +155,8 @@ def miou(confusion: np.ndarray) -> tuple[float, np.ndarray]:
     denom = tp + fp + fn
     with np.errstate(invalid="ignore", divide="ignore"):
         iou = np.where(denom > 0, tp / denom, np.nan)
-    return (float(np.mean(iou[in_target > 0])) if np.any(in_target > 0) else float("nan")), iou
+    counted = (in_target > 0) & (in_target >= min_share * in_target.sum())
+    return (float(np.mean(iou[counted])) if np.any(counted) else float("nan")), iou
 
 
 def spurious_classes(confusion: np.ndarray) -> np.ndarray:

@@ -7,7 +7,16 @@ import pytest
 from skimage.metrics import structural_similarity
 
 from scenelabel.errors import InputError
-from scenelabel.metrics import boundary_f1, confusion_matrix, depth_error, label_boundaries, miou, psnr, ssim
+from scenelabel.metrics import (
+    COMMON_CLASS_SHARE,
+    boundary_f1,
+    confusion_matrix,
+    depth_error,
+    label_boundaries,
+    miou,
+    psnr,
+    ssim,
+)
 
 
 def naive_confusion(pred, target, class_ids, ignore):
@@ -105,6 +114,22 @@ def test_miou_matches_naive_loop():
         expected.append(inter / union)
     np.testing.assert_allclose(per, expected, rtol=1e-12)
     assert math.isclose(mean, float(np.mean(expected)), rel_tol=1e-12)
+
+
+def test_miou_over_the_common_classes_leaves_out_those_below_the_share():
+    """min_share: a class holding fewer of the target's pixels (a lamp's 2 of 1000) keeps its IoU in
+    the per-class array but not in the mean; the share's edge is inclusive."""
+    target = np.repeat([1, 3, 5], [898, 100, 2])
+    pred = np.where(target == 5, 1, target)  # the lamp missed: IoU 0
+    conf = confusion_matrix(pred, target, np.array([1, 3, 5]))
+    everything, per = miou(conf)
+    common, per_common = miou(conf, min_share=0.01)
+    np.testing.assert_array_equal(per, per_common)
+    assert per[2] == 0.0 and math.isclose(everything, (898 / 900 + 1.0 + 0.0) / 3)
+    assert math.isclose(common, (898 / 900 + 1.0) / 2)
+    assert miou(conf, min_share=0.1)[0] == common  # class 3 holds exactly 10 %: in
+    assert miou(conf, min_share=COMMON_CLASS_SHARE)[0] == everything  # 0.2 % >= 0.1 %
+    assert math.isnan(miou(conf, min_share=1.0)[0])
 
 
 def test_miou_nothing_present_is_nan():

@@ -12,7 +12,7 @@ from scenelabel.codes import FREE
 from scenelabel.config import render_background
 from scenelabel.data.scene import UNLABELLED_NAME, Scene
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.metrics import confusion_matrix, depth_error, miou, psnr, spurious_classes, ssim
+from scenelabel.metrics import COMMON_CLASS_SHARE, confusion_matrix, depth_error, miou, psnr, spurious_classes, ssim
 from scenelabel.query.field import SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.train.losses import composite_target
@@ -103,6 +103,7 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
     if conf.sum():
         mean_iou, per_class = miou(conf)
         metrics["miou"] = float(mean_iou)
+        metrics["miou_common"] = miou(conf, COMMON_CLASS_SHARE)[0]  # classes with >= 0.1 % of the pixels
         metrics["miou_smoothed"] = float(miou(conf_smooth)[0])
         metrics["per_class_iou"] = {
             str(cid): (None if not np.isfinite(v) else float(v)) for cid, v in zip(class_ids.tolist(), per_class)
