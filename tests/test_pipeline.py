@@ -228,7 +228,7 @@ def test_an_object_capture_without_bounds_is_bounded_by_its_silhouettes(tmp_path
     import dataclasses
 
     from scenelabel.data.synthetic import toy_cameras
-    from scenelabel.train.pipeline import prepare_training, silhouette_points, silhouettes
+    from scenelabel.train.pipeline import prepare_training, silhouette_points
 
     boxes = dataclasses.replace(toy_scene_geometry(), boxes=toy_scene_geometry().boxes[1:])
     path = write_scene(tmp_path / "boxes", boxes, toy_cameras(16, 0), 48, 36, bounds_in_file=False)
@@ -241,8 +241,8 @@ def test_an_object_capture_without_bounds_is_bounded_by_its_silhouettes(tmp_path
     assert np.all(aabb[0] <= exact[0]) and np.all(aabb[1] >= exact[1])
     assert np.prod(aabb[1] - aabb[0]) < 4.0 * np.prod(exact[1] - exact[0])
     # an image's alpha is its silhouette before its labels; a view cut by the image edge: no hull
-    masks = silhouettes(dataclasses.replace(scene, image_alphas=[None] * (len(scene) - 1) + [np.ones((36, 48))]),
-                        [0, len(scene) - 1])
+    with_alpha = dataclasses.replace(scene, image_alphas=[None] * (len(scene) - 1) + [np.ones((36, 48))])
+    masks = with_alpha.silhouettes([0, len(scene) - 1])
     assert np.array_equal(masks[0], scene.labels[0] != -1) and masks[1].all()
     cut = [np.where(np.arange(48) < 24, 3, label) for label in scene.labels]  # the left half shows box_red
     assert silhouette_points(dataclasses.replace(scene, labels=cut), list(range(len(scene)))) is None

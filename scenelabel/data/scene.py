@@ -27,10 +27,13 @@ from scenelabel.codes import FREE
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 
-__all__ = ["Scene", "ClassMap", "UNLABELLED_NAME"]
+__all__ = ["Scene", "ClassMap", "UNLABELLED_NAME", "SILHOUETTE_ALPHA"]
 
 #: Class name of the single channel of a build without labels (photometric only).
 UNLABELLED_NAME = "unlabelled"
+
+SILHOUETTE_ALPHA = 0.5
+"""A pixel whose alpha is below this shows nothing: its ray meets nothing (:meth:`Scene.silhouettes`)."""
 
 
 @dataclass
@@ -82,6 +85,22 @@ class Scene:
 
     def __len__(self) -> int:
         return len(self.cameras)
+
+    def silhouettes(self, indices: list[int]) -> list[np.ndarray | None]:
+        """Per view of ``indices``: [h, w] bool, True where the image shows something (alpha at least
+        SILHOUETTE_ALPHA where the image has alpha, else a label other than FREE where the view's
+        labels hold FREE), or None where the view does not say where nothing is."""
+        out: list[np.ndarray | None] = []
+        for i in indices:
+            alpha = None if self.image_alphas is None else self.image_alphas[i]
+            label = self.labels[i]
+            if alpha is not None:
+                out.append(alpha >= SILHOUETTE_ALPHA)
+            elif label is not None and np.any(label == FREE):
+                out.append(label != FREE)
+            else:
+                out.append(None)
+        return out
 
     def scaled(self, factor: float) -> "Scene":
         """This scene with world lengths multiplied by ``factor`` (camera centres, near/far, depths, aabb).

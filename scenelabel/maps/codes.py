@@ -1,8 +1,9 @@
 """Codes and constants of the occupancy map format, and the uint8 quantisation (numpy only).
 
 Label codes (:data:`FREE`, :data:`UNKNOWN`, from :mod:`scenelabel.codes`), format name and version,
-array and group names, dtypes, defaults, pyramid limits; :func:`uint8_from_unit` / :func:`unit_from_uint8` (the codes of
-``probs``, ``confidence`` and quantised opacities) and :func:`confidence_from_probs`.
+array and group names, dtypes, defaults, pyramid limits; :func:`uint8_from_unit` /
+:func:`unit_from_uint8` (the codes of ``probs``, ``confidence`` and quantised opacities) and
+:func:`confidence_from_probs`.
 """
 
 from __future__ import annotations

@@ -28,7 +28,6 @@ import torch
 
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
-from scenelabel.codes import FREE
 from scenelabel.config import (
     AUTO,
     BUILD_SECONDS_WITH_DEPTH,
@@ -43,7 +42,7 @@ from scenelabel.config import (
 )
 from scenelabel.data.io import load_scene
 from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, with_layout_depth
-from scenelabel.data.scene import ClassMap, Scene
+from scenelabel.data.scene import SILHOUETTE_ALPHA, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
@@ -285,8 +284,8 @@ def observed_points(
     trainer.run(progress=progress)
     generator = torch.Generator().manual_seed(tc.seed)
     pool = trainer.ray_pool
-    if trainer.rays.alpha is not None:  # a ray its image shows meeting nothing (alpha < 0.5, FREE) observes nothing
-        seen = pool[trainer.rays.alpha[pool] >= 0.5]
+    if trainer.rays.alpha is not None:  # a ray its image shows meeting nothing (alpha, FREE) observes nothing
+        seen = pool[trainer.rays.alpha[pool] >= SILHOUETTE_ALPHA]
         pool = seen if len(seen) else pool
     pick = pool[torch.randint(len(pool), (BOUNDS_RAYS,), generator=generator).to(device)]
     o, d, model = trainer.rays.origins[pick], trainer.rays.directions[pick], trainer.model
@@ -357,33 +356,16 @@ def sensor_depth_points(scene: Scene, train_idx: list[int], seed: int = 0) -> np
     return points
 
 
-def silhouettes(scene: Scene, indices: list[int]) -> list[np.ndarray | None]:
-    """Per view of ``indices``: [h, w] bool, True where the image shows something (alpha >= 0.5 where
-    the image has alpha, else a label other than FREE where the view's labels hold FREE), or None
-    where the view does not say where nothing is."""
-    out: list[np.ndarray | None] = []
-    for i in indices:
-        alpha = None if scene.image_alphas is None else scene.image_alphas[i]
-        label = scene.labels[i]
-        if alpha is not None:
-            out.append(alpha >= 0.5)
-        elif label is not None and np.any(label == FREE):
-            out.append(label != FREE)
-        else:
-            out.append(None)
-    return out
-
-
 def silhouette_points(scene: Scene, train_idx: list[int]) -> np.ndarray | None:
     """An object capture's bounds without a coarse fit: where every training view has a silhouette
-    (:func:`silhouettes`: the images' alpha or FREE labels) that shows its object whole
+    (:meth:`Scene.silhouettes`: the images' alpha or FREE labels) that shows its object whole
     (:func:`scenelabel.geometry.coverage.shows_whole`), their visual hull in the camera frusta
     (:func:`scenelabel.geometry.coverage.visual_hull_points`).
 
     Returns:
         [k, 3] world points, or None (not every view shows an object whole, or nothing is left).
     """
-    masks = silhouettes(scene, train_idx)
+    masks = scene.silhouettes(train_idx)
     if not all(m is not None and shows_whole(m) for m in masks):
         return None
     frusta, _ = aabb_from_cameras(scene.cameras)
