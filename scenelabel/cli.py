@@ -363,9 +363,11 @@ def _cmd_upgrade_checkpoint(args: argparse.Namespace) -> None:
 VIEW_FIELD_WAIT = 10.0
 """``scenelabel view BUILD``: seconds the field waits for a browser to connect before it loads anyway."""
 
-VIEW_FIELD_SETTLE = 1.0
+VIEW_FIELD_SETTLE = 2.5
 """``scenelabel view BUILD``: seconds between a browser's connecting and the field's loading, for the
-browser to draw the map first (loading torch and the checkpoint takes the same cores)."""
+browser to draw the map first (loading torch and the checkpoint takes the same cores): headless
+Chromium on 2 cores, WebGL in software, takes well over a second from the URL to the toy's map drawn
+(docs/viewer_timings.md), so a shorter wait had the field's loading overlap the page's first frames."""
 
 
 def _cmd_view(args: argparse.Namespace) -> None:
