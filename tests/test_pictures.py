@@ -3,6 +3,7 @@ legend and the view's metrics, the build's renders/<view>.png, the floor plan wi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -113,6 +114,19 @@ def test_label_errors_panel_marks_wrong_pixels_only():
     wrong = (render.label != true) & (true != IGNORE)
     assert errors.caption == f"label errors {100 * wrong.sum() / (true != IGNORE).sum():.1f}%"
     assert (errors.image[wrong] == (220, 30, 30)).all() and not (errors.image[~wrong] == (220, 30, 30)).all(-1).any()
+
+
+def test_a_free_pixel_is_right_where_the_render_hit_nothing():
+    """A true FREE pixel (an object capture's background) is right where the render says FREE or
+    UNKNOWN (a ray outside the modelled bounds), wrong where it hit a class; as the scores count it."""
+    photo, render, _, _ = _view()
+    true = np.full(render.label.shape, FREE)
+    label = render.label.copy()
+    label[0, :3] = [FREE, UNKNOWN, 0]
+    errors = evaluation_panels(photo, dataclasses.replace(render, label=label), None, true, None, IGNORE)[-1]
+    wrong = label >= 0
+    assert (errors.image[wrong] == (220, 30, 30)).all() and not (errors.image[~wrong] == (220, 30, 30)).all(-1).any()
+    assert errors.caption == f"label errors {100 * wrong.mean():.1f}%"
 
 
 def test_legend_lists_the_classes_present_in_any_label_panel():

@@ -178,7 +178,8 @@ def evaluation_panels(
         labels: draw the label panels (False for a build without labels: colour and depth only).
     Returns:
         list of :class:`Panel`. Rendered depth is NaN where nothing was hit (label < 0); both
-        depth panels share one colour range, given in the depth caption.
+        depth panels share one colour range, given in the depth caption. A true FREE pixel (its ray
+        meets nothing) is right where the render hit nothing (FREE or UNKNOWN), as the scores count it.
     """
     panels = [Panel("ground truth", np.asarray(photo)), Panel("rgb", np.asarray(render.rgb))]
     label = np.asarray(render.label)
@@ -202,7 +203,8 @@ def evaluation_panels(
     if labels and true_label is not None:
         true_label = np.asarray(true_label)
         counted = np.ones(true_label.shape, bool) if ignore_index is None else true_label != ignore_index
-        wrong = counted & (label != true_label)
+        nothing_hit = (true_label == FREE) & (label < 0)  # scored as held-out metrics score it: right
+        wrong = counted & (label != true_label) & ~nothing_hit
         errors = np.empty(true_label.shape + (3,), np.uint8)
         errors[...] = CORRECT_RGB
         errors[wrong] = ERROR_RGB
