@@ -79,7 +79,7 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast")
 def _print_metrics(metrics: dict, out_dir: Path) -> None:
     if metrics.get("rank", 0):  # a data-parallel rank other than 0: rank 0 reports
         return
-    keys = ["psnr", "ssim", "miou", "miou_smoothed", "depth_error"]
+    keys = ["psnr", "ssim", "miou", "miou_common", "miou_smoothed", "depth_error"]
     parts = [f"{k}={metrics[k]:.4f}" for k in keys if k in metrics]
     print(f"held-out ({metrics.get('n_test_views', 0)} views): " + ", ".join(parts))
     print(

@@ -69,6 +69,7 @@ SUMMARY_METRICS = (
     "psnr",
     "ssim",
     "miou",
+    "miou_common",
     "miou_smoothed",
     "depth_error",
 )

@@ -388,7 +388,8 @@ def _log_history(log: _Logger, history: list[dict]) -> int:
 
 def _metrics_text(metrics: Mapping[str, Any], classes: Mapping[int, str]) -> str:
     lines = ["# Held-out metrics", ""]
-    for key in ("psnr", "ssim", "miou", "miou_smoothed", "depth_error", "n_test_views", "steps", "train_seconds"):
+    for key in ("psnr", "ssim", "miou", "miou_common", "miou_smoothed", "depth_error", "n_test_views", "steps",
+                "train_seconds"):
         if key in metrics:
             value = metrics[key]
             lines.append(f"- **{key}**: {value:.4g}" if isinstance(value, float) else f"- **{key}**: {value}")
