@@ -7,11 +7,12 @@ background mIoU from its alpha) and the instant-ngp fox (a render).
     .venv/bin/python tools/bench_real.py --scenes fern --warps auto --overrides '{"sampling": {"n_steps": 96}}' --out /tmp/v.md
 
 Needs ../shared/data (llff_fern, nerf_synthetic_lego, instant_ngp_fox). Each build runs in a fresh
-subprocess, one after the other; every number in the document comes from this run. Fern is read at 504x378 (images_8,
-``--downscale 8``), views 0, 8, 16 held out (the LLFF convention); it has no labels, so the builds
-are photometric only. ``--presets`` and ``--warps`` compare presets and the field's warps on fern
-(``auto`` picks the forward warp for it: frustum cells and disparity steps, scenelabel/warps.py);
-the fox is built with ``--fox-preset``.
+subprocess, one after the other; every number in the document comes from this run. Fern is read at
+504x378 (images_8, ``--downscale 8``), views 0, 8, 16 held out (the LLFF convention); it has no
+labels, so the builds are photometric only. The lego is labelled from its alpha
+(:func:`labelled_lego`) and built by default at 200x200, its val views held out. ``--presets`` and
+``--warps`` compare presets and the field's warps on fern (``auto`` picks the forward warp for it:
+frustum cells and disparity steps, scenelabel/warps.py); the fox is built with ``--fox-preset``.
 """
 
 from __future__ import annotations
@@ -161,7 +162,7 @@ def _seconds(value: float | None) -> str:
 
 
 def table_lines(rows: list[dict]) -> list[str]:
-    """The rows as a markdown table and the fern target's verdict."""
+    """The rows as a markdown table and the fern and lego targets' verdicts."""
     lines = [
         "| scene | preset | warp | overrides | steps | train s | build s | held-out evaluation s | held-out PSNR "
         "| SSIM | held-out mIoU (per class) |",
