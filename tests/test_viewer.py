@@ -12,7 +12,7 @@ import pytest
 
 from scenelabel import FREE, UNKNOWN, OccupancyMap
 from scenelabel.errors import InputError
-from scenelabel.viz.browser import HeadlessBrowser, find_chromium
+from scenelabel.viz.browser import HeadlessBrowser, colour_fraction, find_chromium
 from scenelabel.viz.viewer import ViewerApp, frustum_segments
 from scenelabel.viz.viewer_gui import rotation_from_wxyz, wxyz_from_rotation
 
@@ -278,9 +278,13 @@ PRESS_BUTTON = """(() => {
 })()"""
 
 
-def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
-    """Fraction of pixels within ``tolerance`` (sum of channel differences) of ``color``."""
-    return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
+def test_colour_fraction_counts_the_pixels_near_a_colour():
+    image = np.zeros((4, 10, 3), np.uint8)
+    image[:, :5] = (200, 30, 30)
+    image[0, 5] = (210, 40, 45)  # within 40 (the sum of the channels' differences) of red
+    assert colour_fraction(image, (200, 30, 30)) == 21 / 40
+    assert colour_fraction(image, (200, 30, 30), tolerance=0) == 20 / 40
+    assert colour_fraction(image, (0, 0, 0)) == 19 / 40
 
 
 @pytest.mark.skipif(find_chromium() is None, reason="no chromium binary (Debian: apt-get install chromium)")

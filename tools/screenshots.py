@@ -52,13 +52,10 @@ def toy_build(work: Path, steps: int) -> Path:
     return out
 
 
-def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
-    """Fraction of pixels within ``tolerance`` (sum of channel differences) of ``color``."""
-    return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
-
-
 def shows_every_class(palette: dict, classes: list[int]) -> Callable[[np.ndarray], bool]:
     """A page's readiness test: every one of ``classes`` covers some of the image in its colour."""
+    from scenelabel.viz.browser import colour_fraction
+
     return lambda image: all(colour_fraction(image, palette[c]) > 0.001 for c in classes)
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CHROMIUM_NAMES", "CHROMIUM_FLAGS", "find_chromium", "HeadlessBrowser", "screenshot"]
+__all__ = ["CHROMIUM_NAMES", "CHROMIUM_FLAGS", "find_chromium", "HeadlessBrowser", "screenshot", "colour_fraction"]
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 CHROMIUM_FLAGS = (
@@ -224,3 +224,9 @@ def screenshot(
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Image.fromarray(image).save(out)
     return image
+
+
+def colour_fraction(image: np.ndarray, color, tolerance: int = 40) -> float:
+    """Fraction of the pixels of ``image`` [h, w, 3] within ``tolerance`` (the sum of the channels'
+    differences) of ``color`` (r, g, b): how much of a screenshot shows a class's colour."""
+    return float((np.abs(image.astype(int) - np.asarray(color)).sum(-1) <= tolerance).mean())
