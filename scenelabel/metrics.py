@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from skimage.metrics import structural_similarity
 
+from scenelabel.codes import FREE
 from scenelabel.errors import InputError
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "label_accuracy",
     "label_boundaries",
     "miou",
+    "no_hit_as_free",
     "spurious_classes",
     "pose_centre_errors",
     "pose_rotation_errors_deg",
@@ -91,6 +93,14 @@ def ssim(pred: np.ndarray, target: np.ndarray, data_range: float = 1.0) -> float
     return float(
         structural_similarity(pred, target, channel_axis=channel_axis, data_range=data_range, win_size=win)
     )
+
+
+def no_hit_as_free(pred_ids: np.ndarray) -> np.ndarray:
+    """Predicted labels [...] with every code of a ray that hit nothing (FREE, and UNKNOWN: it never
+    entered the modelled bounds) read as FREE: the prediction a true FREE pixel (its ray meets
+    nothing, classes.json's ``free_index``) is scored against. Against a class, both are wrong."""
+    pred_ids = np.asarray(pred_ids)
+    return np.where(pred_ids < 0, FREE, pred_ids)
 
 
 def confusion_matrix(

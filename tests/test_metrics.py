@@ -14,6 +14,7 @@ from scenelabel.metrics import (
     depth_error,
     label_boundaries,
     miou,
+    no_hit_as_free,
     psnr,
     ssim,
 )
@@ -130,6 +131,15 @@ def test_miou_over_the_common_classes_leaves_out_those_below_the_share():
     assert miou(conf, min_share=0.1)[0] == common  # class 3 holds exactly 10 %: in
     assert miou(conf, min_share=COMMON_CLASS_SHARE)[0] == everything  # 0.2 % >= 0.1 %
     assert math.isnan(miou(conf, min_share=1.0)[0])
+
+
+def test_a_ray_without_a_hit_predicts_free():
+    """FREE and UNKNOWN (outside the bounds) both read as FREE; class ids stay: a true FREE pixel is
+    right where nothing was hit, a true class pixel wrong either way."""
+    pred = np.array([[3, -1], [-2, 0]])
+    np.testing.assert_array_equal(no_hit_as_free(pred), [[3, -1], [-1, 0]])
+    conf = confusion_matrix(no_hit_as_free(pred), np.array([[3, -1], [-1, 3]]), np.array([-1, 3]))
+    np.testing.assert_array_equal(conf, [[2, 0, 0], [0, 1, 1]])  # row 3: one right, one predicted 0 (outside)
 
 
 def test_miou_nothing_present_is_nan():

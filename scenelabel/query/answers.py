@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenelabel.codes import CODE_NAMES
 from scenelabel.errors import InputError
 from scenelabel.geometry.rays import normalize_directions
 from scenelabel.maps import FREE, OCCUPIED_THRESHOLD, UNKNOWN
@@ -72,8 +73,7 @@ def _summary(name: str, answers, count_field: str) -> str:
     """A one-line repr of an answer: how many, over which classes, and its labels' counts."""
     label = np.asarray(answers.label)
     codes, counts = np.unique(label, return_counts=True)
-    named = {FREE: "FREE", UNKNOWN: "UNKNOWN"}
-    tally = ", ".join(f"{named.get(int(c), int(c))}: {int(n)}" for c, n in zip(codes[:8], counts[:8]))
+    tally = ", ".join(f"{CODE_NAMES.get(int(c), int(c))}: {int(n)}" for c, n in zip(codes[:8], counts[:8]))
     more = ", ..." if len(codes) > 8 else ""
     return f"{name}({count_field}={label.size}, classes={np.asarray(answers.class_ids).tolist()}, labels={{{tally}{more}}})"
 

@@ -12,7 +12,16 @@ from scenelabel.codes import FREE
 from scenelabel.config import render_background
 from scenelabel.data.scene import UNLABELLED_NAME, Scene
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.metrics import COMMON_CLASS_SHARE, confusion_matrix, depth_error, miou, psnr, spurious_classes, ssim
+from scenelabel.metrics import (
+    COMMON_CLASS_SHARE,
+    confusion_matrix,
+    depth_error,
+    miou,
+    no_hit_as_free,
+    psnr,
+    spurious_classes,
+    ssim,
+)
 from scenelabel.query.field import SemanticField
 from scenelabel.query.postprocess import smooth_class_probs
 from scenelabel.train.losses import composite_target
@@ -80,10 +89,10 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         view = {"view": scene.names[i], "psnr": psnr(out.rgb, gt), "ssim": ssim(out.rgb, gt), "render_seconds": render_seconds}
         label = scene.labels[i]
         if label is not None:
-            no_hit = FREE if scores_free else None  # what a ray without a hit predicts (None: it stays wrong)
-            view_conf = confusion_matrix(_no_hit_as(out.label, no_hit), label, class_ids, ignore)
+            # a ray without a hit predicts FREE (without FREE among class_ids: outside them, wrong either way)
+            view_conf = confusion_matrix(no_hit_as_free(out.label), label, class_ids, ignore)
             conf += view_conf
-            conf_smooth += confusion_matrix(_no_hit_as(smoothed_label, no_hit), label, class_ids, ignore)
+            conf_smooth += confusion_matrix(no_hit_as_free(smoothed_label), label, class_ids, ignore)
             view["miou"] = miou(view_conf)[0]
         depth = scene.depths[i]
         if depth is not None:
@@ -120,8 +129,3 @@ def evaluate(field: SemanticField, scene: Scene, test: list[int], smooth_sigma: 
         }
     metrics["per_view"] = per_view
     return metrics
-
-
-def _no_hit_as(label: np.ndarray, code: int | None) -> np.ndarray:
-    """``label`` with every code of a ray without a hit (FREE, UNKNOWN) replaced by ``code`` (None: as is)."""
-    return label if code is None else np.where(label < 0, code, label)

@@ -37,6 +37,7 @@ from scenelabel.maps.codes import FREE, UNKNOWN
 from scenelabel.maps.exports.floorplan import FREE_RGB, UNKNOWN_RGB, colors_from_plan, floor_plan
 from scenelabel.maps.exports.palette import class_palette, default_color
 from scenelabel.maps.occupancy_map import OccupancyMap
+from scenelabel.metrics import no_hit_as_free
 from scenelabel.query.answers import RenderResult
 from scenelabel.query.postprocess import IGNORE_COLOR, NO_CLASS_COLOR
 
@@ -203,8 +204,7 @@ def evaluation_panels(
     if labels and true_label is not None:
         true_label = np.asarray(true_label)
         counted = np.ones(true_label.shape, bool) if ignore_index is None else true_label != ignore_index
-        nothing_hit = (true_label == FREE) & (label < 0)  # scored as held-out metrics score it: right
-        wrong = counted & (label != true_label) & ~nothing_hit
+        wrong = counted & (no_hit_as_free(label) != true_label)  # as the held-out scores count it
         errors = np.empty(true_label.shape + (3,), np.uint8)
         errors[...] = CORRECT_RGB
         errors[wrong] = ERROR_RGB

@@ -49,6 +49,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from scenelabel.codes import CODE_NAMES
 from scenelabel.data.io.depth import z_depth_from_ray_depth
 from scenelabel.errors import InputError
 from scenelabel.geometry.lens import ideal_pinhole_image
@@ -397,7 +398,7 @@ def _metrics_text(metrics: Mapping[str, Any], classes: Mapping[int, str]) -> str
     if per_class:
         lines += ["", "| class | IoU |", "|---|---|"]
         for cid, iou in per_class.items():
-            name = "FREE" if int(cid) == FREE else classes.get(int(cid), cid)  # FREE: held-out pixels that see nothing
+            name = CODE_NAMES.get(int(cid)) or classes.get(int(cid), cid)  # FREE: held-out pixels that see nothing
             lines.append(f"| {name} | {'-' if iou is None else f'{iou:.3f}'} |")
     return "\n".join(lines)
 

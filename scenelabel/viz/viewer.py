@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scenelabel.codes import CODE_NAMES
 from scenelabel.errors import InputError
 from scenelabel.maps import FREE, UNKNOWN, OccupancyMap, confidence_from_probs, unit_from_uint8
 from scenelabel.maps.exports.palette import class_palette, color_lookup
@@ -302,7 +303,7 @@ class ViewerApp:
     # ------------------------------------------------------------------ answers
     def class_name(self, label: int) -> str:
         """A label's name: the class name, "FREE" or "UNKNOWN"."""
-        return {FREE: "FREE", UNKNOWN: "UNKNOWN"}.get(int(label)) or self.classes.get(int(label), str(int(label)))
+        return CODE_NAMES.get(int(label)) or self.classes.get(int(label), str(int(label)))
 
     def query(self, xyz: Any) -> PointAnswer:
         """What is at a world point: the field's ``query_points`` when a field is loaded, else the
