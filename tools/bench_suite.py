@@ -41,6 +41,8 @@ VARIANTS: dict[str, dict] = {
     "solid": {"train": {"solid_weight": 0.01}},
     "decay-0.8": {"sampling": {"grid_decay": 0.8}},
     "voxels": {"preset": "voxels"},
+    "fast": {"preset": "fast"},
+    "voxels-budget": {"preset": "voxels", "train": {"time_budget": "auto"}},  # the default build's time
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
     "planes-256": {"field": {"resolutions": [64, 256]}},
@@ -72,6 +74,8 @@ VARIANTS: dict[str, dict] = {
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
+    "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
+    "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)

@@ -5,7 +5,8 @@ geometry (:func:`suite_geometry`: floor, ceiling and walls as 10 cm slabs plus f
 from templates, placed by a seeded generator), textures (plain: nearly uniform, very low
 contrast; mixed: like the furnished room; busy: soft checkers / stripes of 5-10 cm period) and a
 camera path (:func:`suite_cameras`: "walk" along the walls, "orbit" round the room centre looking
-outward and across, "handheld" a wobbling loop). :func:`write_suite_scene` renders with the exact
+outward and across, "handheld" a wobbling loop, "forward" an LLFF-like rig: photos taken from a
+small patch near one wall, all looking across the room). :func:`write_suite_scene` renders with the exact
 ray caster of :mod:`scenelabel.data.synthetic` and writes no near/far and no aabb, like users' files.
 
 Frame: world z up, metres; the interior is ``[0, sx] x [0, sy] x [0, h]`` for ``size = (sx, sy,
@@ -34,6 +35,7 @@ from scenelabel.errors import InputError
 __all__ = [
     "CAMERA_CLEARANCE",
     "FOV_X_DEG",
+    "FORWARD_SUITE",
     "SUITE",
     "SUITE_CLASSES",
     "STRUCTURAL_PARTS",
@@ -78,7 +80,7 @@ class SuiteSpec:
     name: unique name ("<theme>-<sx>x<sy>"); seed: geometry / texture / camera seed;
     size: (sx, sy, h) interior extent in metres (interior ``[0, sx] x [0, sy] x [0, h]``);
     furniture: number of furniture pieces (pictures and doors count as pieces);
-    texture: "plain" | "mixed" | "busy"; path: "walk" | "orbit" | "handheld";
+    texture: "plain" | "mixed" | "busy"; path: "walk" | "orbit" | "handheld" | "forward";
     n_views, width, height: view count and image size; tuning: False = held out.
     """
 
@@ -110,6 +112,15 @@ SUITE: tuple[SuiteSpec, ...] = (
     SuiteSpec("hires-5x4", 20, (5.0, 4.0, 2.6), 4, "mixed", "handheld", 26, 640, 480, True),
 )
 
+# Forward-facing captures (LLFF's layout, like fern): every photo from a patch about 0.6 x 0.4 m near
+# one wall, looking across the room. New seeds and layouts: none of these rooms is a SUITE room.
+FORWARD_SUITE: tuple[SuiteSpec, ...] = (
+    SuiteSpec("living-6x5-forward", 31, (6.0, 5.0, 2.7), 8, "mixed", "forward", 30, 160, 120, True),
+    SuiteSpec("office-5x4-forward", 32, (5.0, 4.0, 2.7), 7, "busy", "forward", 30, 160, 120, True),
+    SuiteSpec("bedroom-4x4-forward", 33, (4.0, 4.0, 2.5), 5, "plain", "forward", 24, 160, 120, False),
+    SuiteSpec("gallery-8x5-forward", 34, (8.0, 5.0, 3.2), 8, "mixed", "forward", 30, 160, 120, False),
+)
+
 #: furniture kinds a room of a theme (name before "-") gets first; the rest are drawn at random
 THEMES: dict[str, tuple[str, ...]] = {
     "studio": ("table", "chair", "lamp", "picture", "cabinet", "shelf"),
@@ -129,15 +140,17 @@ Texture = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def suite_spec(name: str) -> SuiteSpec:
-    """The :data:`SUITE` entry called ``name`` (InputError naming the known names otherwise)."""
-    for spec in SUITE:
+    """The :data:`SUITE` or :data:`FORWARD_SUITE` entry called ``name`` (InputError naming the known
+    names otherwise)."""
+    rooms = SUITE + FORWARD_SUITE
+    for spec in rooms:
         if spec.name == name:
             return spec
-    raise InputError(f"unknown suite room {name!r}; known: {', '.join(s.name for s in SUITE)}", field="name")
+    raise InputError(f"unknown suite room {name!r}; known: {', '.join(s.name for s in rooms)}", field="name")
 
 
 def _check_spec(spec: SuiteSpec) -> None:
-    for field, allowed in (("texture", ("plain", "mixed", "busy")), ("path", ("walk", "orbit", "handheld"))):
+    for field, allowed in (("texture", ("plain", "mixed", "busy")), ("path", ("walk", "orbit", "handheld", "forward"))):
         if getattr(spec, field) not in allowed:
             raise InputError(f"{field} must be one of {allowed}, got {getattr(spec, field)!r}", field=field)
     if spec.n_views < 2 or spec.width < 1 or spec.height < 1 or spec.furniture < 0:
@@ -524,12 +537,15 @@ def suite_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
     smoothed and sampled at equal arc length (jittered). Eye heights 1.0-1.8 m. Walk cameras
     look inward +-0.9 rad (across and along the walls), orbit cameras turn from outward over
     sideways to across within every ~3 views, handheld cameras look across +-0.8 rad; a view
-    whose horizontal central ray hits something closer than 1.5 m turns away. Targets lie 2 m
+    whose horizontal central ray hits something closer than 1.5 m turns away. "forward":
+    :func:`forward_cameras`. Targets lie 2 m
     ahead at heights between about 0.1 m and ceiling - 0.2 m, alternating up / down from one
     view to the next, so floor and ceiling are seen by training views.
     Raises AssertionError if a camera is outside the room or within CAMERA_CLEARANCE of a box.
     """
     _check_spec(spec)
+    if spec.path == "forward":
+        return forward_cameras(spec, scene)
     h, n = spec.size[2], spec.n_views
     rng = np.random.default_rng([spec.seed, 3])
     loop, pole = loop_positions(spec, scene)
@@ -557,6 +573,61 @@ def suite_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
     z_lo, z_hi = 0.1, h - 0.2
     tz = 0.5 * (z_lo + z_hi) + 0.5 * (z_hi - z_lo) * np.sin(k * phase + rng.uniform(0, 2 * np.pi))
     targets = np.stack([xy[:, 0] + 2.0 * np.cos(az), xy[:, 1] + 2.0 * np.sin(az), tz], axis=1)
+    check_cameras(spec, scene, eyes)
+    return np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
+
+
+RIG_HALF_WIDTH, RIG_HEIGHTS = 0.3, (1.2, 1.6)  # the forward rig's patch: +-0.3 m across, eyes 1.2-1.6 m
+RIG_TURN_DEG = 8.0  # each forward camera turns up to this far (azimuth) from the rig's direction
+
+
+def forward_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
+    """[n_views, 4, 4] OpenGL camera-to-world of an LLFF-like forward-facing capture (deterministic).
+
+    The rig stands where the room is deepest ahead: among the floor points with 2D clearance
+    RIG_HALF_WIDTH + CAMERA_CLEARANCE + 0.05 m and the four wall-normal directions, the pair with
+    the longest view to the opposite wall (less half the point's offset from the room's centre line),
+    whose horizontal central ray travels at least 1.5 m. The cameras fill a patch RIG_HALF_WIDTH
+    across and RIG_HEIGHTS high in a serpentine (view i between views i - 1 and i + 1), jittered;
+    each looks RIG_TURN_DEG or less to either side of the rig's direction, down at a point 0.6-1.4 m
+    high at 60 % of the depth ahead.
+    """
+    sx, sy, _ = spec.size
+    rng = np.random.default_rng([spec.seed, 4])
+    rects = [(np.array(b.lo[:2]), np.array(b.hi[:2])) for b in scene.boxes if b.part not in STRUCTURAL_PARTS]
+    xs, ys, d = _field(spec, rects, 0.05)
+    gx, gy = np.meshgrid(xs, ys)
+    ok = d >= RIG_HALF_WIDTH + CAMERA_CLEARANCE + 0.05
+    best, best_score = None, -np.inf
+    for direction in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
+        ahead = np.where(direction[0] > 0, sx - gx, gx) if direction[0] else np.where(direction[1] > 0, sy - gy, gy)
+        lateral = np.abs(gy - sy / 2) if direction[0] else np.abs(gx - sx / 2)
+        score = np.where(ok, ahead - 0.5 * lateral, -np.inf)
+        for flat in np.argsort(score, axis=None)[::-1][:50]:
+            if not np.isfinite(score.flat[flat]) or score.flat[flat] <= best_score:
+                break
+            eye = np.array([gx.flat[flat], gy.flat[flat], sum(RIG_HEIGHTS) / 2])
+            if cast_rays(eye[None], np.array([[*direction, 0.0]]), scene.boxes).depth[0] >= 1.5:
+                best, best_score = (eye, np.array(direction), float(ahead.flat[flat])), float(score.flat[flat])
+                break
+    if best is None:
+        raise AssertionError(f"{spec.name}: no place for the forward rig")
+    anchor, forward, ahead = best
+    side = np.array([-forward[1], forward[0]])
+    n, rows = spec.n_views, 3
+    cols = math.ceil(n / rows)
+    index = np.arange(n)
+    row, col = index // cols, index % cols
+    col = np.where(row % 2 == 1, cols - 1 - col, col)  # serpentine: neighbours in order are neighbours on the patch
+    u = (col + 0.5) / cols * 2 - 1 + rng.uniform(-0.3, 0.3, n) / cols
+    z = RIG_HEIGHTS[0] + (row + 0.5 + rng.uniform(-0.3, 0.3, n)) / rows * (RIG_HEIGHTS[1] - RIG_HEIGHTS[0])
+    xy = anchor[:2] + RIG_HALF_WIDTH * u[:, None] * side + rng.uniform(-0.05, 0.05, n)[:, None] * forward
+    eyes = np.concatenate([xy, z[:, None]], axis=1)
+    az = np.arctan2(forward[1], forward[0]) + np.radians(rng.uniform(-RIG_TURN_DEG, RIG_TURN_DEG, n))
+    reach = 0.6 * ahead
+    targets = np.stack(
+        [xy[:, 0] + reach * np.cos(az), xy[:, 1] + reach * np.sin(az), rng.uniform(0.6, 1.4, n)], axis=1
+    )
     check_cameras(spec, scene, eyes)
     return np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
 
