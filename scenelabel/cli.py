@@ -15,7 +15,7 @@ import warnings
 from pathlib import Path
 
 from scenelabel._version import __version__
-from scenelabel.config import PRESETS, preset
+from scenelabel.config import AUTO_PRESET, BUILD_SECONDS_WITH_DEPTH, PRESETS, TIME_BUDGET, preset
 from scenelabel.errors import InputError, ScenelabelError, TrainingInterrupted
 
 __all__ = ["main"]
@@ -54,14 +54,17 @@ def _overrides(args: argparse.Namespace) -> dict:
     return overrides
 
 
-def _add_build_options(p: argparse.ArgumentParser, default_preset: str = "fast") -> None:
+def _add_build_options(p: argparse.ArgumentParser, default_preset: str = AUTO_PRESET) -> None:
     p.add_argument("--out", help="output folder (default: SCENE/scenelabel)")
     p.add_argument(
-        "--preset", default=default_preset, choices=sorted(PRESETS), help=f"model/training preset (default: {default_preset})"
+        "--preset", default=default_preset, choices=sorted(PRESETS), help=f"model/training preset (default: {default_preset}"
+        + ("; auto: voxels where the cameras are forward-facing, else fast)" if default_preset == AUTO_PRESET else ")"),
     )
     p.add_argument("--steps", type=int, help="training steps (alone: no time budget)")
     p.add_argument(
-        "--time-budget", type=float, metavar="SECONDS", help="stop training after this many seconds (fast: 150 by default, 75 with sensor depth)"
+        "--time-budget", type=float, metavar="SECONDS",
+        help=f"stop training after this many seconds (auto and fast: {TIME_BUDGET:g} by default; with sensor depth "
+        f"what a build of {BUILD_SECONDS_WITH_DEPTH:g} s leaves)",
     )
     p.add_argument("--seed", type=int, help="random seed (a build is deterministic for a seed)")
     p.add_argument("--holdout", type=int, help="hold out every N-th view for evaluation (0: train on all); "

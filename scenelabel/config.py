@@ -20,7 +20,9 @@ __all__ = [
     "OutputConfig",
     "BuildConfig",
     "PRESETS",
+    "AUTO_PRESET",
     "preset",
+    "with_preset",
     "AUTO",
     "DISTORTION_AUTO_WEIGHT",
     "DISTORTION_THIN_MAX",
@@ -374,8 +376,15 @@ class BuildConfig:
 _MLP_FIELD = {"encoding": "positional", "view_encoding": "positional"}
 _MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decaying 10x)
 
+AUTO_PRESET = "auto"
+"""The default preset: ``fast``, or ``voxels`` where the training cameras are forward-facing (LLFF
+captures like fern); the build chooses once it has loaded the scene
+(:func:`scenelabel.train.pipeline.resolve_preset`), carrying over the settings given on top of it
+(:func:`with_preset`), and saves the choice."""
+
 PRESETS: dict[str, dict] = {
-    # the default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
+    AUTO_PRESET: {"train": {"time_budget": AUTO}},  # as "fast" until the build resolves it
+    # the inward-looking default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
     # training, whichever comes first (with sensor depth 1600 steps or what a build of 88 s leaves
     # after setup and evaluation: train.steps and train.time_budget "auto"), so that a default
     # build's time is known before it starts
@@ -431,7 +440,7 @@ PRESETS: dict[str, dict] = {
 }
 
 
-def preset(name: str = "fast", overrides: dict | None = None) -> BuildConfig:
+def preset(name: str = AUTO_PRESET, overrides: dict | None = None) -> BuildConfig:
     """The named preset's config, with ``overrides`` (nested dict by stage) applied on top."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
@@ -443,6 +452,19 @@ def preset(name: str = "fast", overrides: dict | None = None) -> BuildConfig:
             else:
                 merged[key] = value
     return config_from_dict(merged)
+
+
+def with_preset(config: BuildConfig, name: str) -> BuildConfig:
+    """The preset ``name`` with what made ``config`` on top: its own preset's settings (for the preset
+    "auto": ``train.time_budget`` "auto", a build time known before it starts) and the settings that
+    differ from that preset's (the user's; one given equal to its preset's value is not told apart
+    from one left alone)."""
+    base, own = config_to_dict(preset(config.preset)), config_to_dict(config)
+    overrides = {stage: dict(values) for stage, values in PRESETS[config.preset].items()}
+    for stage, values in own.items():
+        if isinstance(values, dict):
+            overrides.setdefault(stage, {}).update({k: v for k, v in values.items() if v != base[stage][k]})
+    return preset(name, overrides)
 
 
 def _stage_from_dict(cls, data: dict, where: str):

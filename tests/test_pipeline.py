@@ -15,9 +15,9 @@ from scenelabel.data.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
-from scenelabel.geometry.warps import BoxWarp, ForwardWarp, warp_from_dict
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
-from scenelabel.train.pipeline import choose_warp, split_views
+from scenelabel.train.pipeline import resolve_preset, resume_config, split_views
 
 
 def test_every_eighth_view_held_out():
@@ -61,6 +61,11 @@ def _forward_c2ws_opengl(n=5):
     """n OpenGL cameras side by side at y = -3, all looking +y at the toy scene (an LLFF-like rig)."""
     xs = np.linspace(-0.4, 0.4, n)
     return np.stack([look_at([x, -3.0, 1.0 + 0.05 * np.sin(3 * i)], [0.3 * x, 0.0, 0.2]) for i, x in enumerate(xs)])
+
+
+def _forward_cameras():
+    c2w_cv = _forward_c2ws_opengl() @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
+    return Cameras.create(c2w_cv, 30.0, 30.0, 16.0, 12.0, 32, 24, near=1.5, far=5.0)
 
 
 def _frame_and_box(cameras, explicit=None):
@@ -115,8 +120,7 @@ def test_choose_warp_on_an_orbit(small_toy):
 
 
 def test_choose_warp_on_a_forward_facing_rig():
-    c2w_cv = _forward_c2ws_opengl() @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
-    cams = Cameras.create(c2w_cv, 30.0, 30.0, 16.0, 12.0, 32, 24, near=1.5, far=5.0)
+    cams = _forward_cameras()
     frame, aabb_n = _frame_and_box(cams)
     config = _small_config()
     for kind in ("auto", "forward"):
@@ -171,6 +175,42 @@ def test_forward_warp_build_loads_and_answers(forward_scene, tmp_path):
         assert np.isfinite(getattr(out, name)).all(), name
     r = field.query_rays(np.array([[0.0, -3.0, 1.0]]), np.array([[0.0, 1.0, -0.25]]))
     assert np.isfinite(r.depth).all() and np.isfinite(r.rgb).all()
+
+
+# ------------------------------------------------------------------ the preset "auto"
+
+
+def test_preset_auto_is_voxels_for_forward_facing_cameras_and_fast_otherwise(small_toy):
+    given = {"train": {"time_budget": 480.0, "seed": 3}, "output": {"write_map": False}}
+    config, why = resolve_preset(preset("auto", given), _forward_cameras())
+    assert config == preset("voxels", given) and why == "preset auto: the training cameras are forward-facing"
+    config, why = resolve_preset(preset("auto", given), load_scene(small_toy).cameras)  # an orbit
+    assert config == preset("fast", given) and why == "preset auto: the training cameras are not forward-facing"
+    # the default build keeps its time plan (train.time_budget "auto"), whichever it chooses
+    assert resolve_preset(preset(), _forward_cameras())[0] == preset("voxels", {"train": {"time_budget": AUTO}})
+    assert resolve_preset(preset(), load_scene(small_toy).cameras)[0] == preset("fast")
+    for name in ("fast", "voxels", "quick"):  # a named preset is as given
+        assert resolve_preset(preset(name), _forward_cameras()) == (preset(name), None)
+
+
+def test_a_default_build_of_a_forward_facing_capture_trains_voxels_and_resumes_so(forward_scene, tmp_path):
+    small = {
+        "field": {"grid_resolution": 24},
+        "sampling": {"n_steps": 48, "grid_resolution": 16},
+        "train": {"steps": 20, "batch_rays": 128, "holdout": 4},
+        "output": {"write_map": False, "write_renders": False},
+    }
+    result = build(forward_scene, tmp_path / "out", preset("auto", small), progress=False)
+    field = result.field
+    assert result.metrics["preset"] == "voxels" and field.config.preset == "voxels"
+    assert field.config.field.head == "direct" and field.config.field.grid_resolution == 24  # the given size kept
+    assert field.meta["preset_choice"] == "preset auto: the training cameras are forward-facing"
+    assert json.loads((tmp_path / "out" / "config.json").read_text())["preset"] == "voxels"
+    assert np.isfinite(result.metrics["psnr"]) and all(np.isfinite(h["loss"]) for h in result.metrics["history"])
+    again = resume_config(tmp_path / "out", steps=30)
+    resumed = build(forward_scene, tmp_path / "out", again, progress=False, resume=True)
+    assert resumed.metrics["steps"] == 30 and resumed.field.config.preset == "voxels"
+    assert resumed.field.meta["preset_choice"] == field.meta["preset_choice"]  # why the first run chose it
 
 
 # ------------------------------------------------------------------ bounds from the observed geometry

@@ -13,7 +13,10 @@ from PIL import Image
 from scenelabel.data.io import load_scene
 from scenelabel.data.suite import (
     CAMERA_CLEARANCE,
+    FORWARD_SUITE,
     FOV_X_DEG,
+    RIG_HALF_WIDTH,
+    RIG_HEIGHTS,
     STRUCTURAL_PARTS,
     SUITE,
     SUITE_CLASSES,
@@ -34,6 +37,8 @@ from scenelabel.data.synthetic import (
     write_scene,
 )
 from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.warps import capture_reference
 
 VOCAB = {c.id for c in SUITE_CLASSES}
 TARGET_ROOMS = [s for s in SUITE if (s.width, s.height) == (160, 120) and 30 <= s.n_views <= 60]
@@ -181,6 +186,41 @@ def test_cameras_deterministic(rooms):
     for name in ("studio-3x3", "living-6x5", "hall-10x6"):
         spec, scene, c2ws = rooms[name]
         np.testing.assert_array_equal(suite_cameras(spec, suite_geometry(spec)), c2ws)
+
+
+def _cameras(spec: SuiteSpec, c2ws_opengl: np.ndarray) -> Cameras:
+    """The views as the loaders give them (OpenCV axes), without near / far like a suite room's file."""
+    f = _focal(spec.width)
+    c2w_cv = c2ws_opengl @ np.diag([1.0, -1.0, -1.0, 1.0])
+    return Cameras.create(c2w_cv, f, f, spec.width / 2, spec.height / 2, spec.width, spec.height)
+
+
+def test_suite_rooms_are_not_forward_facing_and_the_forward_rooms_are(rooms):
+    """The preset "auto" gives a suite room the fast preset and a forward room the voxels preset: the
+    cameras' rule (capture_reference) tells them apart."""
+    for spec, _, c2ws in rooms.values():
+        assert capture_reference(_cameras(spec, c2ws)) is None, spec.name
+    names = [s.name for s in SUITE + FORWARD_SUITE]
+    assert len(set(names)) == len(names) and {s.path for s in FORWARD_SUITE} == {"forward"}
+    assert any(s.tuning for s in FORWARD_SUITE) and any(not s.tuning for s in FORWARD_SUITE)
+    for spec in FORWARD_SUITE:
+        assert suite_spec(spec.name) is spec
+        scene = suite_geometry(spec)
+        c2ws = suite_cameras(spec, scene)
+        assert c2ws.shape == (spec.n_views, 4, 4)
+        np.testing.assert_array_equal(suite_cameras(spec, scene), c2ws)  # deterministic
+        assert capture_reference(_cameras(spec, c2ws)) is not None, spec.name
+        eyes = c2ws[:, :3, 3]
+        across = np.ptp(eyes[:, :2], axis=0).max()
+        assert across <= 2 * RIG_HALF_WIDTH + 0.15 and np.ptp(eyes[:, :2], axis=0).min() <= 0.15, spec.name
+        assert np.all((eyes[:, 2] >= RIG_HEIGHTS[0]) & (eyes[:, 2] <= RIG_HEIGHTS[1])), spec.name
+        for b in scene.boxes:
+            dist = np.linalg.norm(np.maximum(0, np.maximum(np.array(b.lo) - eyes, eyes - np.array(b.hi))), axis=1)
+            assert dist.min() >= CAMERA_CLEARANCE, (spec.name, b.part)
+        steps = np.linalg.norm(np.diff(eyes, axis=0), axis=1)
+        assert steps.max() <= 0.35, spec.name  # serpentine: a held-out view sits between its neighbours
+        depth = _depth_maps(scene, c2ws, 16, 12)
+        assert np.median(depth) >= 2.0, spec.name  # the cameras look across the room, not at a near wall
 
 
 def test_views_see_closed_room_with_vocabulary_labels(rooms):

@@ -197,6 +197,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
     import torch
 
     from scenelabel import build, load_scene, preset
+    from scenelabel.config import AUTO_PRESET
     from scenelabel.data.suite import suite_geometry, suite_spec, write_suite_scene
     from scenelabel.train.pipeline import choose_views
 
@@ -208,7 +209,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         from scenelabel.data.synthetic import add_phone_depth
 
         add_phone_depth(scene_dir)
-    preset_name = variant.pop("preset", "fast")
+    preset_name = variant.pop("preset", AUTO_PRESET)
     if spec["budget"] is not None:
         variant.setdefault("train", {})["time_budget"] = spec["budget"]
     if spec.get("steps") is not None:
@@ -229,6 +230,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "scene": room.name,
         "tuning": room.tuning,
         "variant": spec["variant"],
+        "preset": m["preset"],  # the one the build chose (preset "auto": fast, or voxels for forward-facing cameras)
         "views": len(scene),
         "resolution": f"{room.width}x{room.height}",
         "build_seconds": build_seconds,
@@ -279,7 +281,7 @@ def _weight(x) -> str:
 COLUMNS = (
     ("room", lambda r: r["scene"]),
     ("views", lambda r: f"{r['views']} @ {r['resolution']}"),
-    ("variant", lambda r: r["variant"]),
+    ("variant", lambda r: r["variant"] + (f" ({r['preset']})" if r["variant"] == "-" and "preset" in r else "")),
     ("build s", lambda r: f"{r['build_seconds']:.0f}"),
     ("steps (/s)", lambda r: f"{r['steps']} ({r['steps_per_second']:.1f})"),
     ("PSNR", lambda r: f"{r['psnr']:.2f}"),

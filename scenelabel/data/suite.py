@@ -23,24 +23,28 @@ and down from one view to the next so that floor and ceiling are seen by trainin
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from scenelabel.data.synthetic import Box, ClassInfo, SyntheticScene, cast_rays, look_at, write_scene
+from scenelabel.data.synthetic.geometry import Texture
+from scenelabel.data.synthetic.textures import patterned_texture
 from scenelabel.errors import InputError
 
 __all__ = [
     "CAMERA_CLEARANCE",
     "FOV_X_DEG",
     "FORWARD_SUITE",
+    "RIG_HALF_WIDTH",
+    "RIG_HEIGHTS",
     "SUITE",
     "SUITE_CLASSES",
     "STRUCTURAL_PARTS",
     "SuiteSpec",
     "check_cameras",
+    "forward_cameras",
     "loop_positions",
     "suite_cameras",
     "suite_geometry",
@@ -136,8 +140,6 @@ THEMES: dict[str, tuple[str, ...]] = {
 }
 RANDOM_KINDS = ("table", "chair", "cabinet", "shelf", "lamp", "picture")
 
-Texture = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
 
 def suite_spec(name: str) -> SuiteSpec:
     """The :data:`SUITE` or :data:`FORWARD_SUITE` entry called ``name`` (InputError naming the known
@@ -161,32 +163,6 @@ def _check_spec(spec: SuiteSpec) -> None:
 # Textures: t(points, normals) in [0, 1] blended between two colours with a contrast per level
 
 
-def _face_coords(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two in-face coordinates (horizontal-ish, vertical-ish) of points on axis-aligned faces."""
-    axis = np.abs(normals).argmax(axis=1)
-    a = np.where(axis == 0, points[:, 1], points[:, 0])
-    b = np.where(axis == 2, points[:, 1], points[:, 2])
-    return a, b
-
-
-def _pattern(name: str, p: np.ndarray, n: np.ndarray, period: float) -> np.ndarray:
-    """[n] pattern value in [0, 1] at points p [n, 3] with face normals n [n, 3]."""
-    a, b = _face_coords(p, n)
-    w = 2 * np.pi / period
-    if name == "checker":  # soft edges: antialiased by the 2x2 supersampling
-        return 0.5 + 0.5 * np.tanh(1.5 * np.sin(w * a) * np.sin(w * b)) / np.tanh(1.5)
-    if name == "stripes":
-        return 0.5 + 0.5 * np.sin(w * a)
-    if name == "diagonal":
-        return 0.5 + 0.5 * np.sin(w * (a + b))
-    if name == "wood":  # bands across x + y with a slow wobble
-        return 0.5 + 0.5 * np.sin(w * (p[:, 0] + p[:, 1] + 0.04 * np.sin(2 * np.pi * p[:, 2] / 1.3)))
-    if name == "tiles":  # square tiles with soft grout lines (1 on the grout)
-        return np.maximum(np.cos(w * a / 2) ** 4, np.cos(w * b / 2) ** 4)
-    # "painting": incommensurate sinusoids, blotchy
-    return 0.5 + (np.sin(w * a) + np.sin(w * (0.6 * a + b) / 1.7) + np.sin(w * b / 0.7)) / 6.0
-
-
 # class -> (pattern, colour 0, colour 1, period for "mixed", period for "busy")
 LOOKS: dict[int, tuple[str, tuple, tuple, float, float]] = {
     FLOOR: ("wood", (0.80, 0.63, 0.42), (0.60, 0.45, 0.30), 0.45, 0.08),
@@ -205,19 +181,6 @@ LOOKS: dict[int, tuple[str, tuple, tuple, float, float]] = {
 CONTRAST = {"plain": 0.06, "mixed": 1.0, "busy": 1.0}
 
 
-def _texture(pattern: str, c0, c1, period: float, contrast: float, gradient_height: float | None) -> Texture:
-    c0, c1 = np.asarray(c0, np.float64), np.asarray(c1, np.float64)
-
-    def texture(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        t = 0.5 + contrast * (_pattern(pattern, points, normals, period) - 0.5)
-        rgb = (1.0 - t)[:, None] * c0 + t[:, None] * c1
-        if gradient_height is not None:  # gentle vertical gradient on walls
-            rgb = rgb * (0.93 + 0.07 * np.clip(points[:, 2] / gradient_height, 0, 1))[:, None]
-        return rgb
-
-    return texture
-
-
 def _textures(spec: SuiteSpec) -> dict[int, Texture]:
     """One texture per vocabulary class for the spec's texture level; colours jittered by seed."""
     rng = np.random.default_rng([spec.seed, 2])
@@ -229,7 +192,7 @@ def _textures(spec: SuiteSpec) -> dict[int, Texture]:
         pattern = "tiles" if spec.texture == "busy" and info.id == FLOOR else pattern
         period = period_busy if spec.texture == "busy" else period_mixed
         contrast = CONTRAST[spec.texture] if info.id != PICTURE else max(0.3, CONTRAST[spec.texture])
-        out[info.id] = _texture(pattern, c0, c1, period, contrast, spec.size[2] if info.id == WALL else None)
+        out[info.id] = patterned_texture(pattern, c0, c1, period, contrast, spec.size[2] if info.id == WALL else None)
     return out
 
 

@@ -15,10 +15,30 @@ from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.rays import camera_directions_from_pixels
 
-__all__ = ["SceneFrame", "aabb_from_cameras", "aabb_from_points", "frustum_points", "near_far_or_fallback"]
+__all__ = [
+    "SceneFrame",
+    "aabb_from_cameras",
+    "aabb_from_points",
+    "frustum_points",
+    "looking_one_way",
+    "near_far_or_fallback",
+    "FORWARD_MAX_ANGLE_DEG",
+]
+
+FORWARD_MAX_ANGLE_DEG = 45.0
+"""A capture is forward-facing when every camera's optical axis is within this angle of the mean axis
+(:func:`looking_one_way`; :func:`scenelabel.geometry.warps.forward_facing_reference` also asks for the
+scene in front)."""
 
 FALLBACK_FAR_FACTOR = 1.5
 """Without near/far, far = this x the diameter of the camera centres (an inward-looking capture)."""
+
+FORWARD_FALLBACK_FAR_FACTOR = 30.0
+"""Without near/far, for cameras looking one way (:func:`looking_one_way`: an LLFF-like capture, whose
+cameras stand close together and look at a scene far away), far = this x the diameter of the camera
+centres. Fern's scene reaches 7.4 x its camera spread (its poses_bounds.npy), the forward-facing
+suite rooms' up to about 15 x; the build's coarse fit then bounds the scene within that far
+(:func:`aabb_from_cameras` with observed points)."""
 
 FALLBACK_NEAR_FRACTION = 0.02
 """Without near, near = this fraction of far."""
@@ -62,11 +82,21 @@ def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.nd
     return np.concatenate(points)
 
 
+def looking_one_way(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) -> bool:
+    """Every optical axis (``c2w[:, :3, 2]``) within ``max_angle_deg`` of their mean direction."""
+    axes = cameras.c2w[:, :3, 2]
+    mean_axis = axes.mean(0)
+    norm = np.linalg.norm(mean_axis)
+    if norm < 1e-9:  # axes that cancel: no mean direction
+        return False
+    return bool(np.degrees(np.arccos(np.clip(axes @ (mean_axis / norm), -1, 1))).max() <= max_angle_deg)
+
+
 def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
     """Each camera's [near, far], with the fallbacks where the input gives none.
 
-    Without far: FALLBACK_FAR_FACTOR x the diameter of the camera centres; without near:
-    FALLBACK_NEAR_FRACTION x far.
+    Without far: FALLBACK_FAR_FACTOR x the diameter of the camera centres (FORWARD_FALLBACK_FAR_FACTOR x
+    for cameras :func:`looking_one_way`); without near: FALLBACK_NEAR_FRACTION x far.
 
     Returns:
         near, far: [n] float64.
@@ -77,7 +107,8 @@ def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
         diameter = float(np.linalg.norm(centres.max(0) - centres.min(0)))
         if diameter <= 0:
             raise InputError("cannot bound the scene: no near/far and all cameras at one point", field="far")
-        far = np.where(np.isfinite(far), far, FALLBACK_FAR_FACTOR * diameter)
+        factor = FORWARD_FALLBACK_FAR_FACTOR if looking_one_way(cameras) else FALLBACK_FAR_FACTOR
+        far = np.where(np.isfinite(far), far, factor * diameter)
     near = np.where(np.isfinite(cameras.near), cameras.near, FALLBACK_NEAR_FRACTION * far)
     return near, far
 
@@ -112,8 +143,7 @@ def aabb_from_cameras(
     frusta; else the union of the camera frusta over [near, far]. ``points_source`` names where the
     points came from in the returned word (a coarse fit's "observed geometry", or "sensor depth").
 
-    Where a camera has no near/far, far = FALLBACK_FAR_FACTOR x the camera-centre diameter and
-    near = FALLBACK_NEAR_FRACTION x far.
+    Where a camera has no near/far: :func:`near_far_or_fallback`.
 
     Returns:
         aabb [2, 3] float64 (min corner, max corner), and a word on where it came from.

@@ -27,12 +27,25 @@ import numpy as np
 import torch
 from torch import nn
 
+from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.frame import (
+    FORWARD_MAX_ANGLE_DEG,
+    SceneFrame,
+    frustum_points,
+    looking_one_way,
+    near_far_or_fallback,
+)
 
-__all__ = ["BoxWarp", "ForwardWarp", "warp_from_dict", "forward_facing_reference", "FORWARD_MAX_ANGLE_DEG"]
-
-FORWARD_MAX_ANGLE_DEG = 45.0
-"""A capture is forward-facing when every camera's optical axis is within this angle of the mean axis."""
+__all__ = [
+    "BoxWarp",
+    "ForwardWarp",
+    "warp_from_dict",
+    "forward_facing_reference",
+    "capture_reference",
+    "choose_warp",
+    "FORWARD_MAX_ANGLE_DEG",
+]
 
 BEHIND_EPS = 1e-6
 """Camera-frame depths below this (normalised units) count as behind the reference camera."""
@@ -190,13 +203,10 @@ def forward_facing_reference(
     Returns:
         keyword arguments of :class:`ForwardWarp` (numpy / floats), or None.
     """
-    axes = cameras.c2w[:, :3, 2]
-    mean_axis = axes.mean(0)
-    if np.linalg.norm(mean_axis) < 1e-9:
+    if not looking_one_way(cameras, max_angle_deg):
         return None
-    z = mean_axis / np.linalg.norm(mean_axis)
-    if np.degrees(np.arccos(np.clip(axes @ z, -1, 1))).max() > max_angle_deg:
-        return None
+    z = cameras.c2w[:, :3, 2].mean(0)
+    z /= np.linalg.norm(z)
     x = cameras.c2w[:, :3, 0].mean(0)
     x = x - (x @ z) * z
     if np.linalg.norm(x) < 1e-9:
@@ -213,3 +223,49 @@ def forward_facing_reference(
         return None
     tan_xy = np.abs(p[:, :2] / depth[:, None]).max(0) * 1.05  # 5% margin beyond the outermost frustum corner
     return {"centre": centre, "rotation": rotation, "tan_xy": tan_xy, "near": 0.95 * near, "far": 1.05 * far}
+
+
+def capture_reference(cameras: Cameras, box: np.ndarray | None = None) -> dict | None:
+    """:func:`forward_facing_reference` of ``cameras`` over their frusta between their near and far
+    (:func:`scenelabel.geometry.frame.near_far_or_fallback` where the input gives none): the reference
+    camera of a forward-facing capture, or None when the capture is not one. Given the modelled
+    ``box`` ([2, 3], the cameras' frame), its near and far are narrowed to the box's corners' depths
+    where the box ends sooner (the box fitted to the observed geometry of an input without near/far):
+    the field's resolution is not spent on depths outside the box.
+    """
+    near, far = near_far_or_fallback(cameras)
+    reference = forward_facing_reference(cameras, frustum_points(cameras, near, far))
+    if reference is None or box is None:
+        return reference
+    box = np.asarray(box, np.float64)
+    corners = np.stack(np.meshgrid(*box.T, indexing="ij"), -1).reshape(-1, 3)  # [8, 3]
+    depth = (corners - reference["centre"]) @ reference["rotation"][:, 2]
+    reference["near"] = max(reference["near"], float(depth.min()))
+    reference["far"] = min(reference["far"], float(depth.max()))
+    return reference
+
+
+def choose_warp(kind: str, cameras: Cameras, frame: SceneFrame, aabb_n: torch.Tensor) -> BoxWarp | ForwardWarp:
+    """The field's warp: ``"box"``, ``"forward"`` or ``"auto"`` (forward when the training
+    ``cameras`` are forward-facing, :func:`capture_reference`, over the depths of the modelled box).
+    ``aabb_n``: [2, 3] the box in ``frame``'s normalised coordinates.
+
+    Raises InputError for ``"forward"`` when the cameras are not forward-facing.
+    """
+    if kind == "box":
+        return BoxWarp(aabb_n)
+    reference = capture_reference(cameras, frame.to_world(aabb_n.numpy()))
+    if reference is None:
+        if kind == "forward":
+            raise InputError(
+                "sampling.warp is 'forward' but the training cameras are not forward-facing "
+                f"(optical axes within {FORWARD_MAX_ANGLE_DEG:g} degrees of their mean, the scene in front)"
+            )
+        return BoxWarp(aabb_n)
+    return ForwardWarp(
+        frame.to_normalised(reference["centre"]),
+        reference["rotation"],
+        reference["tan_xy"],
+        reference["near"] * frame.scale,
+        reference["far"] * frame.scale,
+    )

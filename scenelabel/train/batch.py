@@ -378,7 +378,7 @@ def out_dirs_for(scenes: Iterable[str | Path], out_root: str | Path | None = Non
 
 def _config_dict(config: BuildConfig | dict | None) -> dict:
     if config is None:
-        config = preset("fast")
+        config = preset()
     elif isinstance(config, dict):
         config = config_from_dict(config)  # a bad config fails the batch up front, not each scene
     return config_to_dict(config)

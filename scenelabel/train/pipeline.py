@@ -30,6 +30,7 @@ from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
 from scenelabel.config import (
     AUTO,
+    AUTO_PRESET,
     BUILD_SECONDS_WITH_DEPTH,
     DISTORTION_AUTO_WEIGHT,
     DISTORTION_THIN_MAX,
@@ -39,6 +40,7 @@ from scenelabel.config import (
     preset,
     resolve_for_layout,
     time_budget_with_depth,
+    with_preset,
 )
 from scenelabel.data.io import load_scene
 from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, with_layout_depth
@@ -49,9 +51,9 @@ from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import Cameras, cameras_to_dict
 from scenelabel.geometry.coverage import THIN_VIEWS, shows_whole, thinly_seen_fraction, visual_hull_points
 from scenelabel.geometry.depth_scale import scale_from_depth
-from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
+from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras
 from scenelabel.geometry.rays import rays_from_cameras
-from scenelabel.geometry.warps import FORWARD_MAX_ANGLE_DEG, BoxWarp, ForwardWarp, forward_facing_reference
+from scenelabel.geometry.warps import capture_reference, choose_warp
 from scenelabel.metrics import surface_points_from_depth
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
@@ -61,7 +63,9 @@ from scenelabel.train.distributed import DistContext, broadcast_array, init_from
 from scenelabel.train.evaluation import evaluate, expected_finish_seconds
 from scenelabel.train.trainer import Trainer, rays_for_views
 
-__all__ = ["build", "BuildResult", "split_views", "choose_views", "default_voxel_size", "resume_config"]
+__all__ = [
+    "build", "BuildResult", "split_views", "choose_views", "default_voxel_size", "resume_config", "resolve_preset",
+]
 
 VOXEL_FOOTPRINT_PIXELS = 2.0
 """The default map voxel spans this many training pixels at the typical viewing distance."""
@@ -149,7 +153,8 @@ def _resume(trainer: Trainer, ckpt_path: Path, static: dict) -> None:
     for key in ("class_map", "aabb_world", "train_views"):
         if ckpt.meta.get(key) != json.loads(json.dumps(static[key])):  # as the checkpoint's JSON holds it
             raise CheckpointError(f"{ckpt_path}: cannot resume: the checkpoint's {key} differs from this scene's")
-    static["distortion"] = ckpt.meta.get("distortion", static["distortion"])  # why the first run chose its weight
+    for key in ("distortion", "preset_choice"):  # why the first run chose its weight and its preset
+        static[key] = ckpt.meta.get(key, static[key])
     trainer.load_state_dict(ckpt.training_state())
 
 
@@ -165,30 +170,28 @@ def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: fl
     return config
 
 
+FORWARD_PRESET, INWARD_PRESET = "voxels", "fast"
+"""What the preset "auto" becomes (:func:`resolve_preset`): a dense grid without a network where the
+training cameras are forward-facing (docs/suite_forward.md: the forward-facing suite rooms; docs/real.md:
+fern), tri-planes and a small network otherwise (docs/suite_capacity.md: on rooms seen from inside, the
+dense grid is far behind in the same time)."""
 
 
+def resolve_preset(config: BuildConfig, cameras: Cameras) -> tuple[BuildConfig, str | None]:
+    """``config`` with the preset "auto" (:data:`scenelabel.config.AUTO_PRESET`) made FORWARD_PRESET where
+    the training ``cameras`` are forward-facing (:func:`scenelabel.geometry.warps.capture_reference`),
+    else INWARD_PRESET, with the settings given on top of "auto" (:func:`scenelabel.config.with_preset`);
+    any other preset as it is.
 
-def choose_warp(kind: str, cameras: Cameras, frame: SceneFrame, aabb_n: torch.Tensor) -> BoxWarp | ForwardWarp:
-    """The field's warp (:mod:`scenelabel.geometry.warps`): ``"box"``, ``"forward"`` or ``"auto"`` (forward
-    when the training cameras are forward-facing, :func:`scenelabel.geometry.warps.forward_facing_reference`)."""
-    if kind == "box":
-        return BoxWarp(aabb_n)
-    near, far = near_far_or_fallback(cameras)
-    reference = forward_facing_reference(cameras, frustum_points(cameras, near, far))
-    if reference is None:
-        if kind == "forward":
-            raise InputError(
-                "sampling.warp is 'forward' but the training cameras are not forward-facing "
-                f"(optical axes within {FORWARD_MAX_ANGLE_DEG:g} degrees of their mean, the scene in front)"
-            )
-        return BoxWarp(aabb_n)
-    return ForwardWarp(
-        frame.to_normalised(reference["centre"]),
-        reference["rotation"],
-        reference["tan_xy"],
-        reference["near"] * frame.scale,
-        reference["far"] * frame.scale,
-    )
+    Returns:
+        (the config, why: said before training and saved with the checkpoint as "preset_choice";
+        None for a preset given by name).
+    """
+    if config.preset != AUTO_PRESET:
+        return config, None
+    forward = capture_reference(cameras) is not None
+    why = f"preset {AUTO_PRESET}: the training cameras are {'' if forward else 'not '}forward-facing"
+    return with_preset(config, FORWARD_PRESET if forward else INWARD_PRESET), why
 
 
 def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
@@ -493,8 +496,9 @@ def _training_plan(config: BuildConfig, static: dict) -> str:
     aabb = np.asarray(static["aabb_world"])
     size = " x ".join(f"{x:.3g}" for x in aabb[1] - aabb[0])
     distortion = static["distortion"]
+    choice = f", {static['preset_choice']}" if static["preset_choice"] else ""
     return (
-        f"bounds {size} ({static['aabb_source']}); training ({config.preset}): {limit}; "
+        f"bounds {size} ({static['aabb_source']}); training ({config.preset}{choice}): {limit}; "
         f"distortion term {distortion['weight']:g} ({distortion['why']})"
     )
 
@@ -527,7 +531,7 @@ def build(
     Args:
         scene_path: a scene folder (see docs/formats.md), a video file, or an already loaded Scene.
         out_dir: output folder (default: <scene>/scenelabel; for ``clip.mp4``, ``clip/scenelabel``).
-        config: the resolved config (default: the ``fast`` preset).
+        config: the config (default: the preset "auto"; :func:`resolve_preset` chooses for it).
         progress: show a progress bar.
         device: 'cpu', 'cuda' or None (CUDA when available).
         resume: continue from the checkpoint in ``out_dir`` (same scene; pass its config, see
@@ -542,7 +546,7 @@ def build(
         only the training figures).
     """
     started = time.perf_counter()  # a build with depth plans its training time from here
-    config = config or preset("fast")
+    config = config or preset()
     if isinstance(scene_path, Scene):
         scene = scene_path
     else:  # a video input chooses its frames by config.data.video_* (scenelabel.data.video)
@@ -552,9 +556,11 @@ def build(
         scene = scene.scaled(config.data.scale)
     elif scene.sensor_depths is not None:
         scene = scaled_to_sensor_depth(scene, progress)
+    train_views = choose_views(scene, config.train.holdout)[0]
+    config, preset_choice = resolve_preset(config, scene.cameras[train_views])
     if config.data.layout_depth:  # the room's layout: the depth of a capture without, the holes of one with
         sensed = scene.sensor_depths is not None
-        scene, layout = with_layout_depth(scene, choose_views(scene, config.train.holdout)[0])
+        scene, layout = with_layout_depth(scene, train_views)
         if layout is not None:
             if not sensed:  # the layout is the only depth: the settings of resolve_for_layout
                 config = resolve_for_layout(config)
@@ -572,6 +578,7 @@ def build(
     ckpt_path = out_dir / CHECKPOINT_NAME
     try:
         trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
+        static["preset_choice"] = preset_choice
         if config.train.time_budget == AUTO and trainer.with_depth:
             finish = expected_finish_seconds(scene.cameras[test_idx], config.output.write_renders)
             _plan_time_budget(trainer, static, time.perf_counter() - started, finish)

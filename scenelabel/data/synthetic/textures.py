@@ -10,7 +10,9 @@ import numpy as np
 
 from scenelabel.data.synthetic.geometry import Texture
 
-__all__ = ["plain_with_stripes", "checker_texture", "wood_texture", "wall_texture"]
+__all__ = [
+    "plain_with_stripes", "checker_texture", "wood_texture", "wall_texture", "pattern_value", "patterned_texture",
+]
 
 
 def _soft_checker(a: np.ndarray, b: np.ndarray, period: float, sharpness: float = 2.5) -> np.ndarray:
@@ -73,5 +75,41 @@ def wall_texture(c0, c1, period: float) -> Texture:
         t = 0.5 + 0.5 * np.sin(2 * np.pi * a / period)
         base = _blend(t, c0, c1)
         return base * (0.92 + 0.08 * np.clip(points[:, 2] / 2.6, 0, 1))[:, None]
+
+    return texture
+
+
+def pattern_value(name: str, points: np.ndarray, normals: np.ndarray, period: float) -> np.ndarray:
+    """[n] the scene suite's pattern ``name`` in [0, 1] at ``points`` [n, 3] on faces with ``normals``
+    [n, 3]: "checker" (soft edges), "stripes", "diagonal", "wood" (bands across x + y with a slow
+    wobble), "tiles" (1 on soft grout lines) or "painting" (incommensurate sinusoids, blotchy)."""
+    a, b = _face_coords(points, normals)
+    w = 2 * np.pi / period
+    if name == "checker":  # soft edges: antialiased by the 2x2 supersampling
+        return _soft_checker(a, b, period, sharpness=1.5)
+    if name == "stripes":
+        return 0.5 + 0.5 * np.sin(w * a)
+    if name == "diagonal":
+        return 0.5 + 0.5 * np.sin(w * (a + b))
+    if name == "wood":
+        return 0.5 + 0.5 * np.sin(w * (points[:, 0] + points[:, 1] + 0.04 * np.sin(2 * np.pi * points[:, 2] / 1.3)))
+    if name == "tiles":
+        return np.maximum(np.cos(w * a / 2) ** 4, np.cos(w * b / 2) ** 4)
+    return 0.5 + (np.sin(w * a) + np.sin(w * (0.6 * a + b) / 1.7) + np.sin(w * b / 0.7)) / 6.0
+
+
+def patterned_texture(
+    pattern: str, c0, c1, period: float, contrast: float = 1.0, gradient_height: float | None = None
+) -> Texture:
+    """Two colours blended by :func:`pattern_value` around its middle with ``contrast`` (0: the mean
+    colour, 1: the full pattern); with ``gradient_height``, 7 % darker at the floor than at that height
+    (walls)."""
+
+    def texture(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        t = 0.5 + contrast * (pattern_value(pattern, points, normals, period) - 0.5)
+        rgb = _blend(t, c0, c1)
+        if gradient_height is not None:
+            rgb = rgb * (0.93 + 0.07 * np.clip(points[:, 2] / gradient_height, 0, 1))[:, None]
+        return rgb
 
     return texture
