@@ -1,8 +1,19 @@
 """Config: presets, overrides, unknown keys are errors, round trip through a dict."""
 
+import dataclasses
+
 import pytest
 
-from scenelabel.config import PRESETS, DataConfig, config_from_dict, config_to_dict, preset
+from scenelabel.config import (
+    AUTO,
+    AUTO_PRESET,
+    PRESETS,
+    DataConfig,
+    config_from_dict,
+    config_to_dict,
+    preset,
+    with_preset,
+)
 from scenelabel.errors import ConfigError
 
 
@@ -17,6 +28,25 @@ def test_overrides_apply_on_top_of_the_preset():
     config = preset("quick", {"train": {"steps": 7, "seed": 3}})
     assert config.train.steps == 7 and config.train.seed == 3
     assert config.field.channels == PRESETS["quick"]["field"]["channels"]
+
+
+def test_the_default_preset_is_auto_and_trains_as_fast_until_a_build_chooses():
+    assert preset().preset == AUTO_PRESET
+    assert dataclasses.replace(preset(), preset="fast") == preset("fast")
+
+
+def test_with_preset_carries_the_given_settings_and_the_presets_own():
+    given = {"train": {"time_budget": 480.0, "seed": 3}, "field": {"grid_resolution": 64}}
+    assert with_preset(preset(AUTO_PRESET, given), "voxels") == preset("voxels", given)
+    # the preset's own settings come along: auto's time plan ("auto") replaces voxels' lack of one
+    assert with_preset(preset(), "voxels") == preset("voxels", {"train": {"time_budget": AUTO}})
+    assert with_preset(preset(), "fast") == preset("fast")
+    # a setting given equal to the old preset's value is not told apart from one left alone
+    assert with_preset(preset("fast", {"sampling": {"n_steps": 192}}), "voxels").sampling.n_steps == 128
+    assert with_preset(preset("fast", {"sampling": {"n_steps": 256}}), "voxels").sampling.n_steps == 256
+    quick = PRESETS["quick"]
+    expected = preset("fast", {**quick, "train": {**quick["train"], "seed": 5}})
+    assert with_preset(preset("quick", {"train": {"seed": 5}}), "fast") == expected
 
 
 def test_unknown_keys_and_presets_are_errors():

@@ -5,7 +5,18 @@ import pytest
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.geometry.frame import MIN_BOUNDING_POINTS, POINTS_PAD, SceneFrame, aabb_from_cameras, aabb_from_points
+from scenelabel.geometry.frame import (
+    FALLBACK_FAR_FACTOR,
+    FALLBACK_NEAR_FRACTION,
+    FORWARD_FALLBACK_FAR_FACTOR,
+    MIN_BOUNDING_POINTS,
+    POINTS_PAD,
+    SceneFrame,
+    aabb_from_cameras,
+    aabb_from_points,
+    looking_one_way,
+    near_far_or_fallback,
+)
 
 
 def looking_down(height):
@@ -22,6 +33,32 @@ def test_frustum_bounds_from_near_far():
     # the far plane at z = 1 spans +-9 * (50 / 50) / sqrt(1 + 1 + 1)-ish; check z and symmetry
     assert aabb[0, 2] < 1.0 < 9.0 < aabb[1, 2]
     np.testing.assert_allclose(aabb[0, :2], -aabb[1, :2])
+
+
+def _yawed(yaw_deg, x):
+    """An OpenCV camera at (x, 0, 0) looking along +z turned by ``yaw_deg`` about y."""
+    a = np.radians(yaw_deg)
+    c2w = np.eye(4)
+    c2w[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
+    c2w[0, 3] = x
+    return c2w
+
+
+def test_cameras_looking_one_way_get_a_far_fallback_for_a_scene_far_away():
+    """A forward-facing rig 0.4 m wide without near/far: far 30x its spread, where the 1.5x of an
+    inward-looking capture would end every ray 0.6 m from the rig."""
+    rig = Cameras.create(np.stack([_yawed(y, x) for y, x in ((-10, -0.2), (0, 0.0), (10, 0.2))]), 30.0, 30.0, 20, 15, 40, 30)
+    assert looking_one_way(rig) and not looking_one_way(rig, max_angle_deg=5.0)
+    near, far = near_far_or_fallback(rig)
+    np.testing.assert_allclose(far, FORWARD_FALLBACK_FAR_FACTOR * 0.4)
+    np.testing.assert_allclose(near, FALLBACK_NEAR_FRACTION * far)
+    ring = Cameras.create(np.stack([_yawed(y, 0.1 * k) for k, y in enumerate((0, 90, 180, 270))]), 30.0, 30.0, 20, 15, 40, 30)
+    assert not looking_one_way(ring)
+    np.testing.assert_allclose(near_far_or_fallback(ring)[1], FALLBACK_FAR_FACTOR * 0.3)
+    opposite = Cameras.create(np.stack([_yawed(0, 0.0), _yawed(180, 1.0)]), 30.0, 30.0, 20, 15, 40, 30)
+    assert not looking_one_way(opposite)  # axes that cancel have no mean direction
+    given = Cameras.create(np.stack([_yawed(0, 0.0), _yawed(5, 0.4)]), 30.0, 30.0, 20, 15, 40, 30, near=1.0, far=7.0)
+    np.testing.assert_allclose(near_far_or_fallback(given), [[1.0, 1.0], [7.0, 7.0]])  # given near/far stay
 
 
 def test_explicit_aabb_wins_and_is_checked():

@@ -8,7 +8,7 @@ import torch
 
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.frame import frustum_points
-from scenelabel.geometry.warps import BoxWarp, ForwardWarp, forward_facing_reference, warp_from_dict
+from scenelabel.geometry.warps import BoxWarp, ForwardWarp, capture_reference, forward_facing_reference, warp_from_dict
 
 
 def rot_x(a):
@@ -252,6 +252,28 @@ def test_forward_facing_rig_gets_a_reference_that_holds_every_frustum():
         [cams.centres[i] + (t[i, :, None] * dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)) @ cams.c2w[i, :3, :3].T for i in range(len(cams))]
     )
     assert bool(inside_cube(warp(torch.tensor(inner, dtype=torch.float32))).all())
+
+
+def _same_reference(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_allclose(a[key], b[key], rtol=1e-12, atol=1e-12, err_msg=key)
+
+
+def test_capture_reference_narrows_its_depths_to_the_modelled_box():
+    cams = _cams(llff_rig(), near=0.5, far=6.0)
+    wide = capture_reference(cams)
+    _same_reference(wide, forward_facing_reference(cams, frustum_points(cams, cams.near, cams.far)))
+    box = np.array([[-2.0, -1.5, 1.0], [2.0, 1.5, 4.0]])  # the scene between 1 and 4 in front of the rig
+    narrow = capture_reference(cams, box)
+    corners = np.stack(np.meshgrid(*box.T, indexing="ij"), -1).reshape(-1, 3)
+    depth = (corners - narrow["centre"]) @ narrow["rotation"][:, 2]
+    assert narrow["near"] == pytest.approx(depth.min()) and narrow["far"] == pytest.approx(depth.max())
+    assert wide["near"] < narrow["near"] < narrow["far"] < wide["far"]
+    np.testing.assert_array_equal(narrow["tan_xy"], wide["tan_xy"])  # every view's angles still covered
+    huge = np.array([[-50.0, -50.0, -50.0], [50.0, 50.0, 50.0]])  # a box past the frusta changes nothing
+    _same_reference(capture_reference(cams, huge), wide)
+    assert capture_reference(_cams([_pose(rot_y(a), [0, 0, 0]) for a in (0.0, 1.6, 3.2)]), box) is None
 
 
 def test_orbit_is_not_forward_facing():

@@ -20,6 +20,7 @@ import math
 import multiprocessing as mp
 import os
 import platform
+import queue as queue_module
 import resource
 import statistics
 import sys
@@ -252,7 +253,13 @@ def run_in_child(target, spec: dict) -> dict:
     with tempfile.TemporaryDirectory() as workdir:
         proc = ctx.Process(target=target, args=(spec, workdir, queue))
         proc.start()
-        result = queue.get()
+        while True:  # a child that dies (an exception, the OOM killer) puts nothing: stop, do not wait forever
+            try:
+                result = queue.get(timeout=5.0)
+                break
+            except queue_module.Empty:
+                if not proc.is_alive():
+                    raise RuntimeError(f"{target.__name__} died (exit code {proc.exitcode}) on {spec}") from None
         proc.join()
     return result
 

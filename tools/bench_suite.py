@@ -173,14 +173,15 @@ def three_d_metrics(field, scene, test_idx: list[int], boxes) -> dict:
     t0 = time.perf_counter()
     occ = field.occupancy_map(MAP_VOXEL)
     map_seconds = time.perf_counter() - t0
-    baked = BakedField.from_field(field)
+    # a forward-facing capture's field (disparity steps) has no baked form: its row says n/a
+    baked = BakedField.from_field(field) if field.meta["warp"]["kind"] == "box" else None
     lo, hi = M.boxes_lo_hi(boxes)
     occupied = occ.world_from_index(np.argwhere(occ.occupied))
     f = M.surface_fscore(occupied, _truth_points(scene, rng), M.FSCORE_THRESHOLD, lo, hi)
     return {
         "depth_rel_median": M.relative_depth_error(rays.depth, z),
         "surface_field": M.label_accuracy(field.query_points(surface).label, surface_class),
-        "surface_baked": M.label_accuracy(baked.query_points(surface).label, surface_class),
+        "surface_baked": None if baked is None else M.label_accuracy(baked.query_points(surface).label, surface_class),
         "surface_map": M.label_accuracy(occ.label_at(surface), surface_class),
         "free_field": M.label_accuracy(field.query_points(free).label, np.full(len(free), FREE)),
         "free_map": M.label_accuracy(occ.label_at(free), np.full(len(free), FREE)),
