@@ -131,6 +131,9 @@ def main() -> None:
     if not DATA.is_dir():
         raise SystemExit(f"needs the shared captures in {DATA}")
     rows = [r for r in previous if r["scene"] not in args.scenes]
+    from bench_suite import code_version  # tools/bench_suite.py, beside this script
+
+    made = {"command": "python tools/bench_real.py " + " ".join(sys.argv[1:]), "code": code_version()}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         fern_runs = [(p, w) for p in args.presets for w in args.warps] if "fern" in args.scenes else []
@@ -139,21 +142,21 @@ def main() -> None:
             m = build(DATA / "llff_fern", tmp / f"fern_{name}_{warp}", name, args.budget, 8, overrides)
             rows.append({"scene": "fern", "preset": preset_label(name, m), "warp": warp,
                          "overrides": args.overrides if extra else "-",
-                         **{k: m.get(k) for k in ROW_KEYS}})
+                         **{k: m.get(k) for k in ROW_KEYS}, **made})
             print(rows[-1], flush=True)
             shutil.rmtree(tmp / f"fern_{name}_{warp}", ignore_errors=True)
         if "lego" in args.scenes:  # the default build's own plan (no --time-budget), as a user would run it
             lego = build(labelled_lego(DATA / "nerf_synthetic_lego", tmp / "lego_scene"), tmp / "lego",
                          args.lego_preset, None, args.lego_downscale, extra)
             rows.append({"scene": "lego", "preset": preset_label(args.lego_preset, lego), "warp": "auto",
-                         "overrides": args.overrides if extra else "-", **{k: lego.get(k) for k in ROW_KEYS}})
+                         "overrides": args.overrides if extra else "-", **{k: lego.get(k) for k in ROW_KEYS}, **made})
             print(rows[-1], flush=True)
             shutil.rmtree(tmp / "lego", ignore_errors=True)
         if "fox" in args.scenes:
             fox = build(DATA / "instant_ngp_fox", tmp / "fox", args.fox_preset, args.fox_budget, 4,
                         {**extra, "train": {**extra.get("train", {}), "holdout": 8}})
             rows.append({"scene": "fox", "preset": preset_label(args.fox_preset, fox), "warp": "auto",
-                         "overrides": args.overrides if extra else "-", **{k: fox.get(k) for k in ROW_KEYS}})
+                         "overrides": args.overrides if extra else "-", **{k: fox.get(k) for k in ROW_KEYS}, **made})
             print(rows[-1], flush=True)
             # a build without labels renders ground truth | rgb per held-out view: the first two, side by side
             renders = sorted((tmp / "fox" / "renders").glob("*.png"))[:2]
@@ -231,6 +234,17 @@ def _miou(row: dict) -> str:
     return f"{row['miou']:.3f} ({per_class})"
 
 
+def provenance_lines(rows: list[dict]) -> list[str]:
+    """Which command and code made the rows (rows of runs before they were recorded say so)."""
+    made = list(dict.fromkeys((r.get("command"), r.get("code")) for r in rows))
+    return [
+        "Rows made by: " + "; ".join(
+            f"`{command}` (code {code})" if command else "an earlier run (command not recorded)" for command, code in made
+        ) + ".",
+        "",
+    ]
+
+
 def write_documents(rows: list[dict], out_md: Path, into_benchmarks: bool) -> None:
     """out_md and its JSON; with ``into_benchmarks`` also the marked section of docs/benchmarks.md."""
     rows = sorted(rows, key=lambda r: SCENES.index(r["scene"]))
@@ -251,6 +265,7 @@ def write_documents(rows: list[dict], out_md: Path, into_benchmarks: bool) -> No
         "",
         *table_lines(rows),
         "",
+        *provenance_lines(rows),
         "Fox, two held-out views (left: the photo, right: the render):",
         "",
         "![fox: ground truth | render](fox_render.png)",

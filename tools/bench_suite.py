@@ -43,6 +43,7 @@ VARIANTS: dict[str, dict] = {
     "voxels": {"preset": "voxels"},
     "fast": {"preset": "fast"},
     "voxels-budget": {"preset": "voxels", "train": {"time_budget": "auto"}},  # the default build's time
+    "class-balance": {"train": {"class_balance": True}},
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
     "planes-256": {"field": {"resolutions": [64, 256]}},
@@ -76,6 +77,7 @@ NOTES: dict[str, str] = {
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
+    "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
