@@ -14,6 +14,7 @@ from scenelabel.geometry.frame import (
     SceneFrame,
     aabb_from_cameras,
     aabb_from_points,
+    forward_rig,
     looking_one_way,
     near_far_or_fallback,
 )
@@ -49,12 +50,20 @@ def test_cameras_looking_one_way_get_a_far_fallback_for_a_scene_far_away():
     inward-looking capture would end every ray 0.6 m from the rig."""
     rig = Cameras.create(np.stack([_yawed(y, x) for y, x in ((-10, -0.2), (0, 0.0), (10, 0.2))]), 30.0, 30.0, 20, 15, 40, 30)
     assert looking_one_way(rig) and not looking_one_way(rig, max_angle_deg=5.0)
+    assert forward_rig(rig) and not forward_rig(rig, max_angle_deg=5.0)
     near, far = near_far_or_fallback(rig)
     np.testing.assert_allclose(far, FORWARD_FALLBACK_FAR_FACTOR * 0.4)
     np.testing.assert_allclose(near, FALLBACK_NEAR_FRACTION * far)
     ring = Cameras.create(np.stack([_yawed(y, 0.1 * k) for k, y in enumerate((0, 90, 180, 270))]), 30.0, 30.0, 20, 15, 40, 30)
     assert not looking_one_way(ring)
     np.testing.assert_allclose(near_far_or_fallback(ring)[1], FALLBACK_FAR_FACTOR * 0.3)
+    # a camera carried forward (down a corridor) looks one way but is no rig: the inward fallback
+    drive = [_yawed(y, x) for y, x in ((-5, 0.0), (0, 0.1), (5, 0.0))]
+    for c2w, z in zip(drive, (0.0, 2.0, 4.0)):
+        c2w[2, 3] = z
+    drive = Cameras.create(np.stack(drive), 30.0, 30.0, 20, 15, 40, 30)
+    assert looking_one_way(drive) and not forward_rig(drive)
+    np.testing.assert_allclose(near_far_or_fallback(drive)[1], FALLBACK_FAR_FACTOR * np.sqrt(0.1**2 + 4.0**2))
     opposite = Cameras.create(np.stack([_yawed(0, 0.0), _yawed(180, 1.0)]), 30.0, 30.0, 20, 15, 40, 30)
     assert not looking_one_way(opposite)  # axes that cancel have no mean direction
     given = Cameras.create(np.stack([_yawed(0, 0.0), _yawed(5, 0.4)]), 30.0, 30.0, 20, 15, 40, 30, near=1.0, far=7.0)

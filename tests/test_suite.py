@@ -38,6 +38,7 @@ from scenelabel.data.synthetic import (
 )
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.frame import forward_rig
 from scenelabel.geometry.warps import capture_reference
 
 VOCAB = {c.id for c in SUITE_CLASSES}
@@ -199,7 +200,7 @@ def test_suite_rooms_are_not_forward_facing_and_the_forward_rooms_are(rooms):
     """The preset "auto" gives a suite room the fast preset and a forward room the voxels preset: the
     cameras' rule (capture_reference) tells them apart."""
     for spec, _, c2ws in rooms.values():
-        assert capture_reference(_cameras(spec, c2ws)) is None, spec.name
+        assert capture_reference(_cameras(spec, c2ws)) is None and not forward_rig(_cameras(spec, c2ws)), spec.name
     names = [s.name for s in SUITE + FORWARD_SUITE]
     assert len(set(names)) == len(names) and {s.path for s in FORWARD_SUITE} == {"forward"}
     assert any(s.tuning for s in FORWARD_SUITE) and any(not s.tuning for s in FORWARD_SUITE)
@@ -209,7 +210,8 @@ def test_suite_rooms_are_not_forward_facing_and_the_forward_rooms_are(rooms):
         c2ws = suite_cameras(spec, scene)
         assert c2ws.shape == (spec.n_views, 4, 4)
         np.testing.assert_array_equal(suite_cameras(spec, scene), c2ws)  # deterministic
-        assert capture_reference(_cameras(spec, c2ws)) is not None, spec.name
+        cameras = _cameras(spec, c2ws)
+        assert capture_reference(cameras) is not None and forward_rig(cameras), spec.name
         eyes = c2ws[:, :3, 3]
         across = np.ptp(eyes[:, :2], axis=0).max()
         assert across <= 2 * RIG_HALF_WIDTH + 0.15 and np.ptp(eyes[:, :2], axis=0).min() <= 0.15, spec.name

@@ -237,12 +237,8 @@ def _miou(row: dict) -> str:
 def provenance_lines(rows: list[dict]) -> list[str]:
     """Which command and code made the rows (rows of runs before they were recorded say so)."""
     made = list(dict.fromkeys((r.get("command"), r.get("code")) for r in rows))
-    return [
-        "Rows made by: " + "; ".join(
-            f"`{command}` (code {code})" if command else "an earlier run (command not recorded)" for command, code in made
-        ) + ".",
-        "",
-    ]
+    said = [f"`{cmd}` (code {code})" if cmd else "an earlier run (command not recorded)" for cmd, code in made]
+    return ["Rows made by: " + "; ".join(said) + ".", ""]
 
 
 def write_documents(rows: list[dict], out_md: Path, into_benchmarks: bool) -> None:

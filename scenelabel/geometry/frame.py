@@ -20,6 +20,7 @@ __all__ = [
     "aabb_from_cameras",
     "aabb_from_points",
     "frustum_points",
+    "forward_rig",
     "looking_one_way",
     "near_far_or_fallback",
     "FORWARD_MAX_ANGLE_DEG",
@@ -34,11 +35,16 @@ FALLBACK_FAR_FACTOR = 1.5
 """Without near/far, far = this x the diameter of the camera centres (an inward-looking capture)."""
 
 FORWARD_FALLBACK_FAR_FACTOR = 30.0
-"""Without near/far, for cameras looking one way (:func:`looking_one_way`: an LLFF-like capture, whose
-cameras stand close together and look at a scene far away), far = this x the diameter of the camera
-centres. Fern's scene reaches 7.4 x its camera spread (its poses_bounds.npy), the forward-facing
-suite rooms' up to about 15 x; the build's coarse fit then bounds the scene within that far
-(:func:`aabb_from_cameras` with observed points)."""
+"""Without near/far, for a :func:`forward_rig` (an LLFF-like capture, whose cameras stand close
+together and look at a scene far away), far = this x the diameter of the camera centres. Fern's
+scene reaches 7.4 x its camera spread (its poses_bounds.npy), the forward-facing suite rooms' about
+8-12 x; the build's coarse fit then bounds the scene within that far (:func:`aabb_from_cameras`
+with observed points)."""
+
+FORWARD_RIG_DEPTH_RATIO = 0.5
+"""A :func:`forward_rig`'s camera centres spread along the mean viewing direction at most this
+fraction of their spread across it (fern: 0.11; the forward-facing suite rooms: about 0.2); a
+camera carried forward, down a corridor, spreads along it."""
 
 FALLBACK_NEAR_FRACTION = 0.02
 """Without near, near = this fraction of far."""
@@ -92,11 +98,25 @@ def looking_one_way(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_D
     return bool(np.degrees(np.arccos(np.clip(axes @ (mean_axis / norm), -1, 1))).max() <= max_angle_deg)
 
 
+def forward_rig(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) -> bool:
+    """Cameras that photograph a scene in front of them from a patch across their view (LLFF's
+    captures): :func:`looking_one_way`, and the centres' extent along the mean optical axis at most
+    FORWARD_RIG_DEPTH_RATIO x their extent across it."""
+    if not looking_one_way(cameras, max_angle_deg):
+        return False
+    axis = cameras.c2w[:, :3, 2].mean(0)
+    axis /= np.linalg.norm(axis)
+    offsets = cameras.centres - cameras.centres.mean(0)
+    along = offsets @ axis
+    across = offsets - along[:, None] * axis
+    return bool(np.ptp(along) <= FORWARD_RIG_DEPTH_RATIO * np.linalg.norm(across.max(0) - across.min(0)))
+
+
 def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
     """Each camera's [near, far], with the fallbacks where the input gives none.
 
     Without far: FALLBACK_FAR_FACTOR x the diameter of the camera centres (FORWARD_FALLBACK_FAR_FACTOR x
-    for cameras :func:`looking_one_way`); without near: FALLBACK_NEAR_FRACTION x far.
+    for a :func:`forward_rig`); without near: FALLBACK_NEAR_FRACTION x far.
 
     Returns:
         near, far: [n] float64.
@@ -107,7 +127,7 @@ def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
         diameter = float(np.linalg.norm(centres.max(0) - centres.min(0)))
         if diameter <= 0:
             raise InputError("cannot bound the scene: no near/far and all cameras at one point", field="far")
-        factor = FORWARD_FALLBACK_FAR_FACTOR if looking_one_way(cameras) else FALLBACK_FAR_FACTOR
+        factor = FORWARD_FALLBACK_FAR_FACTOR if forward_rig(cameras) else FALLBACK_FAR_FACTOR
         far = np.where(np.isfinite(far), far, factor * diameter)
     near = np.where(np.isfinite(cameras.near), cameras.near, FALLBACK_NEAR_FRACTION * far)
     return near, far
