@@ -550,7 +550,7 @@ def forward_cameras(spec: SuiteSpec, scene: SyntheticScene) -> np.ndarray:
     The rig stands where the room is deepest ahead: among the floor points with 2D clearance
     RIG_HALF_WIDTH + CAMERA_CLEARANCE + 0.05 m and the four wall-normal directions, the pair with
     the longest view to the opposite wall (less half the point's offset from the room's centre line),
-    whose horizontal central ray travels at least 1.5 m. The cameras fill a patch RIG_HALF_WIDTH
+    whose horizontal central ray travels at least 1.5 m. The cameras fill a patch +-RIG_HALF_WIDTH
     across and RIG_HEIGHTS high in a serpentine (view i between views i - 1 and i + 1), jittered;
     each looks RIG_TURN_DEG or less to either side of the rig's direction, down at a point 0.6-1.4 m
     high at 60 % of the depth ahead.
