@@ -52,6 +52,7 @@ VARIANTS: dict[str, dict] = {
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
     "distortion-late": {"train": {"distortion_weight": 0.002, "distortion_start": 0.3}},
     "distortion-0.0005": {"train": {"distortion_weight": 0.0005}},
+    "distortion-0.01": {"train": {"distortion_weight": 0.01}},
     # the room written with depth as a phone gives it (scenelabel.data.synthetic.add_phone_depth:
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
     "phone-depth": {"capture": "phone-depth"},
