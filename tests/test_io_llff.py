@@ -14,6 +14,8 @@ from shared_data import DATA, read_points3d_bin
 from scenelabel.data.io import load_scene
 from scenelabel.data.io.llff import choose_image_folder, llff_to_opencv, load_llff, read_poses_bounds
 from scenelabel.errors import InputError
+from scenelabel.geometry.frame import FORWARD_FALLBACK_FAR_FACTOR, forward_rig
+from scenelabel.geometry.warps import capture_reference
 
 FERN = DATA / "llff_fern"
 ROOM = DATA / "llff_room_poses"
@@ -250,6 +252,11 @@ def test_fern_is_forward_facing(fern) -> None:
     mean /= np.linalg.norm(mean)
     angles = np.degrees(np.arccos(np.clip(forward @ mean, -1, 1)))
     assert angles.max() < 30.0
+    # a forward rig (its far fallback, were its file without near/far) whose scene lies within that far
+    assert forward_rig(fern.cameras) and capture_reference(fern.cameras) is not None
+    centres = fern.cameras.centres
+    spread = np.linalg.norm(centres.max(0) - centres.min(0))
+    assert 2 * fern.cameras.far.max() < FORWARD_FALLBACK_FAR_FACTOR * spread
 
 
 def test_fern_sparse_points_lie_in_front_within_bounds(fern) -> None:

@@ -36,15 +36,15 @@ FALLBACK_FAR_FACTOR = 1.5
 
 FORWARD_FALLBACK_FAR_FACTOR = 30.0
 """Without near/far, for a :func:`forward_rig` (an LLFF-like capture, whose cameras stand close
-together and look at a scene far away), far = this x the diameter of the camera centres. Fern's
-scene reaches 7.4 x its camera spread (its poses_bounds.npy), the forward-facing suite rooms' about
-8-12 x; the build's coarse fit then bounds the scene within that far (:func:`aabb_from_cameras`
-with observed points)."""
+together and look at a scene far away), far = this x the diameter of the camera centres: at least
+twice fern's far (its poses_bounds.npy) and the forward-facing suite rooms' farthest walls
+(tests/test_io_llff.py, tests/test_suite.py); the build's coarse fit then bounds the scene within
+that far (:func:`aabb_from_cameras` with observed points)."""
 
 FORWARD_RIG_DEPTH_RATIO = 0.5
 """A :func:`forward_rig`'s camera centres spread along the mean viewing direction at most this
-fraction of their spread across it (fern: 0.11; the forward-facing suite rooms: about 0.2); a
-camera carried forward, down a corridor, spreads along it."""
+fraction of their spread across it (fern and the forward-facing suite rooms, well within it: the
+tests); a camera carried forward, down a corridor, spreads along it."""
 
 FALLBACK_NEAR_FRACTION = 0.02
 """Without near, near = this fraction of far."""
