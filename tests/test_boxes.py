@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from scenelabel.geometry.boxes import ray_box_distances, slab_distances
+from scenelabel.geometry.boxes import box_corners, ray_box_distances, slab_distances
 from scenelabel.render.sampling import ray_aabb_intersect
 
 LO, HI = np.array([-1.0, -2.0, 0.5]), np.array([1.0, 0.5, 3.0])
@@ -67,3 +67,10 @@ def test_extreme_scales_give_no_nan(scale):
     t_min, t_max = ray_aabb_intersect(torch.tensor(o * scale), torch.tensor(d), torch.tensor(np.stack([LO, HI]) * scale))
     assert not torch.isnan(t_min).any() and not torch.isnan(t_max).any()
     np.testing.assert_array_equal(t_enter <= t_exit, (t_min <= t_max).numpy())
+
+
+def test_box_corners_against_a_loop():
+    aabb = np.array([[-1.0, 0.5, 2.0], [3.0, 0.75, 2.5]])
+    expected = [[aabb[a, 0], aabb[b, 1], aabb[c, 2]] for a in (0, 1) for b in (0, 1) for c in (0, 1)]
+    np.testing.assert_array_equal(box_corners(aabb), expected)
+    assert box_corners(aabb.tolist()).dtype == np.float64

@@ -16,7 +16,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["slab_distances", "ray_box_distances"]
+__all__ = ["box_corners", "slab_distances", "ray_box_distances"]
+
+
+def box_corners(aabb: Any) -> np.ndarray:
+    """[8, 3] float64 corners of the box ``aabb`` [2, 3]: x slowest, z fastest
+    ((lo, lo, lo), (lo, lo, hi), (lo, hi, lo), ..., (hi, hi, hi) per axis)."""
+    aabb = np.asarray(aabb, np.float64).reshape(2, 3)
+    return np.stack(np.meshgrid(*aabb.T, indexing="ij"), -1).reshape(-1, 3)
 
 
 def slab_distances(origins: Any, directions: Any, lo: Any, hi: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ __all__ = [
     "frustum_points",
     "forward_rig",
     "looking_one_way",
+    "mean_optical_axis",
     "near_far_or_fallback",
     "FORWARD_MAX_ANGLE_DEG",
 ]
@@ -88,14 +89,20 @@ def frustum_points(cameras: Cameras, near: np.ndarray, far: np.ndarray) -> np.nd
     return np.concatenate(points)
 
 
-def looking_one_way(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) -> bool:
-    """Every optical axis (``c2w[:, :3, 2]``) within ``max_angle_deg`` of their mean direction."""
-    axes = cameras.c2w[:, :3, 2]
-    mean_axis = axes.mean(0)
+def mean_optical_axis(cameras: Cameras) -> np.ndarray | None:
+    """[3] unit mean of the cameras' optical axes (``c2w[:, :3, 2]``); None where they cancel (norm
+    of the mean below 1e-9: no mean direction)."""
+    mean_axis = cameras.c2w[:, :3, 2].mean(0)
     norm = np.linalg.norm(mean_axis)
-    if norm < 1e-9:  # axes that cancel: no mean direction
+    return None if norm < 1e-9 else mean_axis / norm
+
+
+def looking_one_way(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) -> bool:
+    """Every optical axis within ``max_angle_deg`` of their mean direction (:func:`mean_optical_axis`)."""
+    axis = mean_optical_axis(cameras)
+    if axis is None:
         return False
-    return bool(np.degrees(np.arccos(np.clip(axes @ (mean_axis / norm), -1, 1))).max() <= max_angle_deg)
+    return bool(np.degrees(np.arccos(np.clip(cameras.c2w[:, :3, 2] @ axis, -1, 1))).max() <= max_angle_deg)
 
 
 def forward_rig(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) -> bool:
@@ -104,8 +111,7 @@ def forward_rig(cameras: Cameras, max_angle_deg: float = FORWARD_MAX_ANGLE_DEG) 
     FORWARD_RIG_DEPTH_RATIO x their extent across it."""
     if not looking_one_way(cameras, max_angle_deg):
         return False
-    axis = cameras.c2w[:, :3, 2].mean(0)
-    axis /= np.linalg.norm(axis)
+    axis = mean_optical_axis(cameras)
     offsets = cameras.centres - cameras.centres.mean(0)
     along = offsets @ axis
     across = offsets - along[:, None] * axis

@@ -28,12 +28,14 @@ import torch
 from torch import nn
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import box_corners
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.frame import (
     FORWARD_MAX_ANGLE_DEG,
     SceneFrame,
     frustum_points,
     looking_one_way,
+    mean_optical_axis,
     near_far_or_fallback,
 )
 
@@ -205,8 +207,7 @@ def forward_facing_reference(
     """
     if not looking_one_way(cameras, max_angle_deg):
         return None
-    z = cameras.c2w[:, :3, 2].mean(0)
-    z /= np.linalg.norm(z)
+    z = mean_optical_axis(cameras)
     x = cameras.c2w[:, :3, 0].mean(0)
     x = x - (x @ z) * z
     if np.linalg.norm(x) < 1e-9:
@@ -237,9 +238,7 @@ def capture_reference(cameras: Cameras, box: np.ndarray | None = None) -> dict |
     reference = forward_facing_reference(cameras, frustum_points(cameras, near, far))
     if reference is None or box is None:
         return reference
-    box = np.asarray(box, np.float64)
-    corners = np.stack(np.meshgrid(*box.T, indexing="ij"), -1).reshape(-1, 3)  # [8, 3]
-    depth = (corners - reference["centre"]) @ reference["rotation"][:, 2]
+    depth = (box_corners(box) - reference["centre"]) @ reference["rotation"][:, 2]
     reference["near"] = max(reference["near"], float(depth.min()))
     reference["far"] = min(reference["far"], float(depth.max()))
     return reference

@@ -25,6 +25,7 @@ import numpy as np
 
 from scenelabel.data.io.common import check_pose
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import box_corners
 
 __all__ = [
     "WORLD_FRAMES",
@@ -95,7 +96,6 @@ def original_frame_aabb(aabb: np.ndarray, applied: np.ndarray) -> np.ndarray:
 
     A rotation other than an axis permutation makes the box larger than the volume it bounds.
     """
-    aabb = np.asarray(aabb, np.float64)
-    corners = np.array([[aabb[a, 0], aabb[b, 1], aabb[c, 2], 1.0] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    corners = np.concatenate([box_corners(aabb), np.ones((8, 1))], axis=1)  # homogeneous
     moved = corners @ np.linalg.inv(np.asarray(applied, np.float64)).T
     return np.stack([moved[:, :3].min(axis=0), moved[:, :3].max(axis=0)])

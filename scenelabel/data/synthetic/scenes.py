@@ -26,6 +26,7 @@ from scenelabel.data.synthetic.geometry import BACKGROUND_ID, Box, ClassInfo, Sy
 from scenelabel.data.synthetic.textures import checker_texture, plain_with_stripes, wall_texture, wood_texture
 from scenelabel.data.synthetic.views import look_at, render_view
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import box_corners
 
 __all__ = [
     "HOLDOUT_EVERY",
@@ -252,7 +253,7 @@ def write_scene(
     f = _focal_from_fov(width, fov_x_deg)
     cx, cy = width / 2.0, height / 2.0
     aabb = scene.aabb
-    corners = np.array([[aabb[a][0], aabb[b][1], aabb[c][2]] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    corners = box_corners(aabb)
     frames = []
     digits = max(3, len(str(len(c2ws) - 1)))
     for index, c2w in enumerate(c2ws):
