@@ -382,14 +382,23 @@ captures like fern); the build chooses once it has loaded the scene
 (:func:`scenelabel.train.pipeline.resolve_preset`), carrying over the settings given on top of it
 (:func:`with_preset`), and saves the choice."""
 
+AUTO_CARRIES = {"train": {"time_budget": AUTO}}
+"""What the preset "auto" hands on to the preset it becomes (:func:`with_preset`): its time plan, a
+build time known before it starts; its other settings are the fast preset's."""
+
+# the inward-looking default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
+# training, whichever comes first (with sensor depth 1600 steps or what a build of 88 s leaves
+# after setup and evaluation: train.steps and train.time_budget "auto"), so that a default
+# build's time is known before it starts
+# (docs/suite.md: this build on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth).
+# 288 marching steps across the box (a 6 x 5 m room's: 2-3 cm): with 192 (4-5 cm) a chair leg or
+# a picture frame 4 cm thick held a training sample on some rays and none on others, and the
+# field left it half transparent (docs/suite.md: the variant steps-192)
+_FAST = {"sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
+
 PRESETS: dict[str, dict] = {
-    AUTO_PRESET: {"train": {"time_budget": AUTO}},  # as "fast" until the build resolves it
-    # the inward-looking default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
-    # training, whichever comes first (with sensor depth 1600 steps or what a build of 88 s leaves
-    # after setup and evaluation: train.steps and train.time_budget "auto"), so that a default
-    # build's time is known before it starts
-    # (docs/suite.md: this build on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth)
-    "fast": {"train": {"time_budget": AUTO}},
+    AUTO_PRESET: _FAST,  # as "fast" until the build resolves it (what it hands on: AUTO_CARRIES)
+    "fast": _FAST,
     # captures with sensor depth (RGB-D, phone LiDAR; docs/captures.md) when time matters more than
     # labels: the depth terms make surfaces early, so 800 steps (at most 75 s of training) gave the
     # geometry (depth, surface labels, F-score) of the then default 2000 steps in about 60 % of its
@@ -460,7 +469,8 @@ def with_preset(config: BuildConfig, name: str) -> BuildConfig:
     differ from that preset's (the user's; one given equal to its preset's value is not told apart
     from one left alone)."""
     base, own = config_to_dict(preset(config.preset)), config_to_dict(config)
-    overrides = {stage: dict(values) for stage, values in PRESETS[config.preset].items()}
+    carried = AUTO_CARRIES if config.preset == AUTO_PRESET else PRESETS[config.preset]
+    overrides = {stage: dict(values) for stage, values in carried.items()}
     for stage, values in own.items():
         if isinstance(values, dict):
             overrides.setdefault(stage, {}).update({k: v for k, v in values.items() if v != base[stage][k]})

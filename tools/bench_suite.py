@@ -46,6 +46,7 @@ VARIANTS: dict[str, dict] = {
     "class-balance": {"train": {"class_balance": True}},
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
+    "steps-192": {"sampling": {"n_steps": 192}},  # the fast preset's marching before 288
     "planes-256": {"field": {"resolutions": [64, 256]}},
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
