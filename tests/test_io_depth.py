@@ -35,8 +35,9 @@ from scenelabel.data.io.transforms_json import load_transforms
 from scenelabel.data.synthetic import add_phone_depth, write_toy_scene
 from scenelabel.data.synthetic.phone_depth import depth_discontinuities
 from scenelabel.errors import InputError
+from scenelabel.geometry.cameras import OPENGL_TO_OPENCV
 
-FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL <-> OpenCV camera axes (its own inverse)
+FLIP = OPENGL_TO_OPENCV  # OpenGL <-> OpenCV camera axes (its own inverse)
 COLMAP_APPLIED = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0]]  # ns-process-data's
 
 

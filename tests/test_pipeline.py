@@ -13,7 +13,7 @@ from scenelabel.config import AUTO, DISTORTION_AUTO_WEIGHT, DISTORTION_THIN_MAX
 from scenelabel.data.io import load_scene
 from scenelabel.data.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.errors import InputError
-from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
@@ -64,7 +64,7 @@ def _forward_c2ws_opengl(n=5):
 
 
 def _forward_cameras():
-    c2w_cv = _forward_c2ws_opengl() @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
+    c2w_cv = opengl_to_opencv(_forward_c2ws_opengl())
     return Cameras.create(c2w_cv, 30.0, 30.0, 16.0, 12.0, 32, 24, near=1.5, far=5.0)
 
 

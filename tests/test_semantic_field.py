@@ -7,7 +7,7 @@ from threads import assert_concurrent_calls_match
 
 from scenelabel import FREE, UNKNOWN, InputError, SemanticField, build, preset, write_toy_scene
 from scenelabel.errors import CheckpointError
-from scenelabel.geometry.cameras import cameras_to_dict
+from scenelabel.geometry.cameras import cameras_to_dict, opengl_to_opencv
 from scenelabel.maps import confidence_from_probs, unit_from_uint8
 from scenelabel.maps.visibility import observed_voxels, project_points, scaled_cameras
 from scenelabel.query.field import TRAIN_CAMERAS_KEY
@@ -82,7 +82,7 @@ def test_render_shapes_conventions_and_smoothing(field):
     c2w_gl[:3, 3] = [0.0, 0.0, 3.0]  # OpenGL: looks down -z, i.e. at the floor
     img = field.render(c2w_gl, 16, 12, 14.0, convention="opengl")
     assert img.rgb.shape == (12, 16, 3) and img.depth.shape == (12, 16) and img.label.shape == (12, 16)
-    c2w_cv = c2w_gl @ np.diag([1.0, -1.0, -1.0, 1.0])
+    c2w_cv = opengl_to_opencv(c2w_gl)
     same = field.render(c2w_cv, 16, 12, 14.0)
     np.testing.assert_allclose(img.depth, same.depth, rtol=1e-5)
     smooth = field.render(c2w_cv, 16, 12, 14.0, smooth_sigma=2.0)
@@ -302,7 +302,7 @@ def test_render_keeps_rays_within_near_far_and_render_camera_passes_the_cameras_
     (LLFF bounds), as its training rays had it."""
     c2w = np.eye(4)
     c2w[:3, 3] = [0.0, 0.0, 3.0]
-    img = field.render(c2w @ np.diag([1.0, -1.0, -1.0, 1.0]), 16, 12, 14.0, near=2.0, far=2.5)
+    img = field.render(opengl_to_opencv(c2w), 16, 12, 14.0, near=2.0, far=2.5)
     assert np.all(img.depth >= 2.0 - 1e-5) and np.all(img.depth <= 2.5 + 1e-5)
     cams = field.training_cameras()
     bounded = type(cams)(**{**vars(cams), "near": np.full(len(cams), 2.0), "far": np.full(len(cams), 2.5)})

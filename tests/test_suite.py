@@ -37,7 +37,7 @@ from scenelabel.data.synthetic import (
     write_scene,
 )
 from scenelabel.errors import InputError
-from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import FORWARD_FALLBACK_FAR_FACTOR, forward_rig
 from scenelabel.geometry.warps import capture_reference
 
@@ -192,7 +192,7 @@ def test_cameras_deterministic(rooms):
 def _cameras(spec: SuiteSpec, c2ws_opengl: np.ndarray) -> Cameras:
     """The views as the loaders give them (OpenCV axes), without near / far like a suite room's file."""
     f = _focal(spec.width)
-    c2w_cv = c2ws_opengl @ np.diag([1.0, -1.0, -1.0, 1.0])
+    c2w_cv = opengl_to_opencv(c2ws_opengl)
     return Cameras.create(c2w_cv, f, f, spec.width / 2, spec.height / 2, spec.width, spec.height)
 
 

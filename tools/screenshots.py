@@ -10,7 +10,8 @@ screenshot of the page shows every class's colour, taken when that screenshot ar
 0.05 s; and when the command printed its URL): the freshly started browser's first page, then the
 median of COMMAND_RUNS more once the browser has drawn it (a user's browser has drawn pages before);
 the ready time after the URL is opened with the server already running in this process, a point
-query's latency through the API, and a 320 x 240 render from the browser's camera with each method.
+query's latency through the API, and a 320 x 240 render from the browser's camera with each method
+(the page at rest, the field baked apart).
 Needs a chromium (Debian: ``apt-get install chromium``; tools/setup.sh installs it where it can).
 """
 
@@ -29,6 +30,10 @@ REPO = Path(__file__).resolve().parents[1]
 COMMAND_RUNS = 5
 """Runs of ``scenelabel view BUILD`` timed after the browser's first page (their median is reported):
 the machine is noisy."""
+RENDER_RUNS = 3
+"""Renders timed per method (their median is reported)."""
+REST_SECONDS = 3.0
+"""Seconds the page is left to finish drawing before renders are timed, as a user looks before pressing Render."""
 DEFAULT_WORK = Path("/tmp/scenelabel-screenshots")
 # viser warns in the page that WebGL runs in software (SwiftShader, as headless Chromium does): close it
 DISMISS_SOFTWARE_WEBGL = """(() => {
@@ -149,17 +154,26 @@ def main(argv: list[str] | None = None) -> int:
                 t = time.perf_counter()
                 app.query(hit if hit is not None else box)
                 latencies.append(time.perf_counter() - t)
-            renders = {}
+            # a user presses Render on a page at rest: let the page finish drawing the query's
+            # marker and the field's cameras first (SwiftShader draws on the same cores as torch)
+            time.sleep(REST_SECONDS)
             methods = ("baked", "map", "field") if app.field is not None else ("map",)
+            bake_seconds = None
+            if app.field is not None:
+                t = time.perf_counter()
+                app.baked()
+                bake_seconds = time.perf_counter() - t
+            renders = {}
             for method in methods:  # the field last: its rgb stays in the panel
-                renders[method] = app.show_render(client, method).seconds
+                renders[method] = statistics.median(app.show_render(client, method).seconds for _ in range(RENDER_RUNS))
             app.gui["render_method"].value = methods[-1]
             view = camera_pose(client.camera)
             time.sleep(1.0)
             browser.evaluate(DISMISS_SOFTWARE_WEBGL)
             image = browser.wait_for(shows_every_class(app.palette, classes), 60)
         # the same view again with no browser drawing (SwiftShader WebGL takes CPU from the field)
-        alone = {method: app.render_view(*view, method=method).seconds for method in methods}
+        alone = {method: statistics.median(app.render_view(*view, method=method).seconds for _ in range(RENDER_RUNS))
+                 for method in methods}
     finally:
         app.stop()
     from PIL import Image
@@ -176,9 +190,10 @@ def main(argv: list[str] | None = None) -> int:
         f"page ready {ready:.2f} s after the URL was opened (the server already running in this process)",
         f"point query through ViewerApp.query: median of 20 {1000 * statistics.median(latencies):.2f} ms "
         f"({'field' if app.field is not None else 'map'})",
-        "320 x 240 render from the browser's camera: " + ", ".join(f"{m} {s:.2f} s" for m, s in renders.items())
-        + " (baked: the first includes baking); with the browser closed: "
-        + ", ".join(f"{m} {s:.2f} s" for m, s in alone.items()),
+        f"320 x 240 render from the browser's camera (median of {RENDER_RUNS}, the page at rest): "
+        + ", ".join(f"{m} {s:.2f} s" for m, s in renders.items())
+        + ("" if bake_seconds is None else f" (baking the field for `baked`, once: {bake_seconds:.2f} s)")
+        + "; with the browser closed: " + ", ".join(f"{m} {s:.2f} s" for m, s in alone.items()),
     ]
     print(f"wrote {args.out} ({width} x {height})\n" + "\n".join(lines))
     write_timings(args.timings, build_dir, lines)
