@@ -179,13 +179,11 @@ geometry and labels on the suite's rooms (docs/depth_grid_decay.md)."""
 
 
 STEPS = 2000
-"""``train.steps`` "auto" without sensor depth."""
-
-STEPS_WITH_DEPTH = 1600
-"""``train.steps`` "auto" with sensor depth: the depth terms make surfaces early. On the four tuning
-rooms of docs/depth_step_count.md (one run) 1600 steps kept 2000's depth error, surface labels and
-F-score, with held-out mIoU at most 0.011 lower and PSNR at most 0.8 dB lower, in 0.70-0.80 of the
-build time; 1300 lost up to 0.022 mIoU (hall-10x6)."""
+"""``train.steps`` "auto", with sensor depth or without. Builds with phone-like depth once stopped at
+1600 steps (the depth terms make surfaces early: docs/depth_step_count.md); since the marching went
+to 288 steps (docs/suite.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
+the twelve suite rooms, with builds of 55-72 s at 160x120, well within BUILD_SECONDS_WITH_DEPTH
+(docs/depth_2000.md against docs/suite.md's phone-depth rows)."""
 
 TIME_BUDGET = 150.0
 """``train.time_budget`` "auto" (the fast preset's) without sensor depth: seconds of training."""
@@ -194,7 +192,7 @@ BUILD_SECONDS_WITH_DEPTH = 88.0
 """``train.time_budget`` "auto" with sensor depth: the seconds a whole build should take on 2 cores
 (setup, training, evaluation; the map apart), so that one stays within 90 s with the noise of the
 evaluation's estimate (issue 24's target). Training gets what setup and the expected evaluation
-leave (:func:`time_budget_with_depth`), and stops at STEPS_WITH_DEPTH steps if that comes first."""
+leave (:func:`time_budget_with_depth`), and stops at STEPS steps if that comes first."""
 
 MIN_TIME_BUDGET = 20.0
 """Training seconds a build with depth keeps however long its setup took (it then runs over)."""
@@ -209,16 +207,16 @@ def time_budget_with_depth(setup_seconds: float = 0.0, finish_seconds: float = 0
 
 
 def resolve_by_depth(config: BuildConfig, with_depth: bool) -> BuildConfig:
-    """``config`` with the settings whose "auto" follows the training rays' sensor depth made numbers:
-    ``sampling.grid_decay``, ``train.steps`` and ``train.time_budget`` become GRID_DECAY_WITH_DEPTH,
-    STEPS_WITH_DEPTH and :func:`time_budget_with_depth` (the build then plans it from its setup and
-    held-out views) when the rays carry depth the build trains on (``with_depth``), else
-    GRID_DECAY, STEPS and TIME_BUDGET."""
+    """``config`` with its "auto" settings made numbers, following the training rays' sensor depth:
+    ``sampling.grid_decay`` and ``train.time_budget`` become GRID_DECAY_WITH_DEPTH and
+    :func:`time_budget_with_depth` (the build then plans it from its setup and held-out views) when
+    the rays carry depth the build trains on (``with_depth``), else GRID_DECAY and TIME_BUDGET;
+    ``train.steps`` becomes STEPS either way."""
     sc, tc = config.sampling, config.train
     if sc.grid_decay == AUTO:
         sc = dataclasses.replace(sc, grid_decay=GRID_DECAY_WITH_DEPTH if with_depth else GRID_DECAY)
     if tc.steps == AUTO:
-        tc = dataclasses.replace(tc, steps=STEPS_WITH_DEPTH if with_depth else STEPS)
+        tc = dataclasses.replace(tc, steps=STEPS)
     if tc.time_budget == AUTO:
         tc = dataclasses.replace(tc, time_budget=time_budget_with_depth() if with_depth else TIME_BUDGET)
     return dataclasses.replace(config, sampling=sc, train=tc)
@@ -265,8 +263,8 @@ def render_background(background: tuple[float, float, float] | str | None) -> tu
 class TrainConfig:
     """The optimisation loop."""
 
-    # "auto": STEPS, or STEPS_WITH_DEPTH where the training rays carry sensor depth (and
-    # depth_weight > 0); the build saves the number it chose
+    # "auto": STEPS (with sensor depth the time budget "auto" may stop it sooner); the build saves
+    # the number it chose
     steps: int | str = "auto"
     batch_rays: int = 1024
     lr_encoding: float = 2e-2
@@ -387,13 +385,12 @@ AUTO_CARRIES = {"train": {"time_budget": AUTO}}
 build time known before it starts; its other settings are the fast preset's."""
 
 # the inward-looking default: tri-plane 64+128 x 8 channels, 1024-ray batches; at most 2000 steps or 150 s of
-# training, whichever comes first (with sensor depth 1600 steps or what a build of 88 s leaves
-# after setup and evaluation: train.steps and train.time_budget "auto"), so that a default
-# build's time is known before it starts
-# (docs/suite.md: this build on rooms of 3x3 to 10x6 m; docs/depth_suite.md: with depth).
-# 288 marching steps across the box (a 6 x 5 m room's: 2-3 cm): with 192 (4-5 cm) a chair leg or
-# a picture frame 4 cm thick held a training sample on some rays and none on others, and the
-# field left it half transparent (docs/suite.md: the variant steps-192)
+# training, whichever comes first (with sensor depth: what a build of 88 s leaves after setup and
+# evaluation, train.time_budget "auto"), so that a default build's time is known before it starts
+# (docs/suite.md: this build on rooms of 3x3 to 10x6 m, with and without phone-like depth).
+# 288 marching steps across the box (the suite's rooms: 2-5 cm, living-6x5's 3.6): with 192 (3-8 cm,
+# living's 5.4) a chair leg or a picture frame 2-4 cm thick held a jittered training sample on some
+# rays and none on others, and the field left it half transparent (docs/suite.md: variant steps-192)
 _FAST = {"sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
 
 PRESETS: dict[str, dict] = {

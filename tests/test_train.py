@@ -402,7 +402,6 @@ def test_auto_grid_decay_steps_and_budget_follow_sensor_depth(scene):
         GRID_DECAY,
         GRID_DECAY_WITH_DEPTH,
         STEPS,
-        STEPS_WITH_DEPTH,
         TIME_BUDGET,
         time_budget_with_depth,
     )
@@ -411,11 +410,11 @@ def test_auto_grid_decay_steps_and_budget_follow_sensor_depth(scene):
     auto = {"steps": "auto", "time_budget": "auto"}
     cases = (
         (plain, {"train": auto}, (GRID_DECAY, STEPS, TIME_BUDGET)),
-        (with_depth, {"train": auto}, (GRID_DECAY_WITH_DEPTH, STEPS_WITH_DEPTH, time_budget_with_depth())),
+        (with_depth, {"train": auto}, (GRID_DECAY_WITH_DEPTH, STEPS, time_budget_with_depth())),
         (with_depth, {"train": {**auto, "depth_weight": 0.0}}, (GRID_DECAY, STEPS, TIME_BUDGET)),
         (with_depth, {"sampling": {"grid_decay": 0.5}, "train": {"steps": 7, "time_budget": None}}, (0.5, 7, None)),
     )
-    assert GRID_DECAY != GRID_DECAY_WITH_DEPTH and STEPS != STEPS_WITH_DEPTH and TIME_BUDGET != time_budget_with_depth()
+    assert GRID_DECAY != GRID_DECAY_WITH_DEPTH and TIME_BUDGET != time_budget_with_depth()
     for loaded, overrides, expected in cases:
         trainer, _, _ = prepare_training(loaded, preset("quick", overrides), torch.device("cpu"))
         tc = trainer.config.train
