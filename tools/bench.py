@@ -82,6 +82,8 @@ VARIANTS: dict[str, dict] = {
     "distortion": {"train": {"distortion_weight": 0.002}},
     "black-bg": {"train": {"background": None}},
     "black-bg+distortion": {"train": {"background": None, "distortion_weight": 0.002}},
+    # sampling: the fast preset's marching before 288 steps across the box
+    "steps-192": {"sampling": {"n_steps": 192}},
 }
 
 
