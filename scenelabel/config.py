@@ -119,9 +119,7 @@ class SamplingConfig:
     grid_resolution: int = 64  # density grid side
     grid_update_every: int = 16  # training steps between occupancy-grid refreshes
     grid_warmup: int = 16  # steps before the first refresh (all cells occupied until then)
-    # a cell is occupied if one step through it is this opaque (a step no finer than 1/192 of the
-    # box: render.sampling.THRESHOLD_MAX_STEPS)
-    alpha_threshold: float = 0.005
+    alpha_threshold: float = 0.005  # a cell is occupied if one step through it is this opaque
     # each refresh keeps max(decay x a cell's remembered density, its density now): a cell the field
     # has emptied stays occupied until its early density has decayed below the threshold. "auto":
     # GRID_DECAY_WITH_DEPTH where the training rays carry sensor depth (and train.depth_weight > 0),

@@ -11,7 +11,6 @@ from scenelabel.render.sampling import (
     MIN_DISPARITY,
     MIN_DISPARITY_T,
     PDF_EPS,
-    THRESHOLD_MAX_STEPS,
     DensityGrid,
     cell_indices,
     free_cells_from_depth,
@@ -278,21 +277,6 @@ def test_forward_grid_per_slice_step_gives_per_slice_threshold():
     flat = DensityGrid(_forward_warp(), resolution=r, step=0.05, alpha_threshold=alpha)
     flat.update(lambda p: torch.full((len(p),), sigma), decay=0.0, generator=torch.Generator().manual_seed(0))
     assert bool(flat.bits.all()) == (sigma > -np.log1p(-alpha) / 0.05) and flat.bits.unique().numel() == 1
-
-
-def test_a_marching_finer_than_threshold_max_steps_keeps_its_grid_threshold():
-    """The grid's σ threshold is one step's opacity, for steps no finer than the box diagonal /
-    THRESHOLD_MAX_STEPS: finer marching does not ask a thin part for more density."""
-    aabb_n = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    warp, alpha = BoxWarp(aabb_n), 0.005
-
-    def threshold(n_steps):
-        return float(DensityGrid.for_march(warp, aabb_n, 8, n_steps, alpha).sigma_threshold.reshape(-1)[0])
-
-    diag = float(np.sqrt(12.0))
-    assert threshold(128) == pytest.approx(-np.log1p(-alpha) / (diag / 128), rel=1e-6)
-    assert threshold(THRESHOLD_MAX_STEPS) == pytest.approx(-np.log1p(-alpha) / (diag / THRESHOLD_MAX_STEPS), rel=1e-6)
-    assert threshold(288) == threshold(THRESHOLD_MAX_STEPS) == threshold(10 * THRESHOLD_MAX_STEPS)
 
 
 def naive_importance_sample(starts, ends, weights, us):

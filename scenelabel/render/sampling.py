@@ -330,12 +330,6 @@ def free_cells_from_depth(
     return (votes[:n_cells] >= CARVE_MIN_POINTS).reshape((resolution,) * 3) & ~near_hit
 
 
-THRESHOLD_MAX_STEPS = 192
-"""A density grid's threshold is the opacity of one marching step, but of no step finer than the box
-diagonal (or disparity range) / THRESHOLD_MAX_STEPS: with 288 steps a threshold on the finer step
-asked 1.5x the density, and the grid emptied the cells of a lamp's pole while it was still forming
-(the furnished room of tools/bench.py lost its lamp), so finer marching keeps this step's threshold."""
-
 REBUILD_SAMPLES = 3
 """Points per axis and cell at which :meth:`DensityGrid.rebuild` evaluates the density (27 per cell)."""
 
@@ -390,11 +384,9 @@ class DensityGrid(nn.Module):
     def for_march(
         cls, warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int, alpha_threshold: float
     ) -> "DensityGrid":
-        """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``, or in
-        THRESHOLD_MAX_STEPS where ``n_steps`` is more (:func:`cell_steps`): what training builds
-        and what a loaded field rebuilds."""
-        step = cell_steps(warp, aabb_n, resolution, min(n_steps, THRESHOLD_MAX_STEPS))
-        return cls(warp, resolution, step, alpha_threshold)
+        """A grid whose threshold matches marching ``aabb_n`` (normalised) in ``n_steps``
+        (:func:`cell_steps`): what training builds and what a loaded field rebuilds."""
+        return cls(warp, resolution, cell_steps(warp, aabb_n, resolution, n_steps), alpha_threshold)
 
     def carve(self, free: torch.Tensor) -> None:
         """Hold ``free`` ([R, R, R] bool, e.g. :func:`free_cells_from_depth`) empty from now on:
