@@ -389,8 +389,9 @@ build time known before it starts; its other settings are the fast preset's."""
 # evaluation, train.time_budget "auto"), so that a default build's time is known before it starts
 # (docs/suite.md: this build on rooms of 3x3 to 10x6 m, with and without phone-like depth).
 # 288 marching steps across the box (the suite's rooms: 2-5 cm, living-6x5's 3.6): with 192 (3-8 cm,
-# living's 5.4) a chair leg or a picture frame 2-4 cm thick held a jittered training sample on some
-# rays and none on others, and the field left it half transparent (docs/suite.md: variant steps-192)
+# living's 5.4) chair legs and picture frames came out half transparent (docs/suite.md: variant
+# steps-192); docs/models.md says what changes with the step (the samples and the density grid's
+# threshold) and what it costs (tools/bench.py's room loses its lamp's pole)
 _FAST = {"sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
 
 PRESETS: dict[str, dict] = {
