@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import warnings
 from pathlib import Path
@@ -14,7 +15,7 @@ from shared_data import DATA, read_points3d_bin
 from scenelabel.data.io import load_scene
 from scenelabel.data.io.llff import choose_image_folder, llff_to_opencv, load_llff, read_poses_bounds
 from scenelabel.errors import InputError
-from scenelabel.geometry.frame import FORWARD_FALLBACK_FAR_FACTOR, forward_rig
+from scenelabel.geometry.frame import forward_rig, mean_optical_axis, near_far_or_fallback
 from scenelabel.geometry.warps import capture_reference
 
 FERN = DATA / "llff_fern"
@@ -248,15 +249,14 @@ def test_fern_bounds_from_file_and_rigid(fern) -> None:
 
 def test_fern_is_forward_facing(fern) -> None:
     forward = fern.cameras.c2w[:, :3, 2]
-    mean = forward.mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    angles = np.degrees(np.arccos(np.clip(forward @ mean, -1, 1)))
+    angles = np.degrees(np.arccos(np.clip(forward @ mean_optical_axis(fern.cameras), -1, 1)))
     assert angles.max() < 30.0
     # a forward rig (its far fallback, were its file without near/far) whose scene lies within that far
     assert forward_rig(fern.cameras) and capture_reference(fern.cameras) is not None
-    centres = fern.cameras.centres
-    spread = np.linalg.norm(centres.max(0) - centres.min(0))
-    assert 2 * fern.cameras.far.max() < FORWARD_FALLBACK_FAR_FACTOR * spread
+    unknown = np.full(len(fern.cameras), np.nan)
+    unbounded = dataclasses.replace(fern.cameras, near=unknown, far=unknown)
+    _, fallback_far = near_far_or_fallback(unbounded)
+    assert 2 * fern.cameras.far.max() < fallback_far.min()
 
 
 def test_fern_sparse_points_lie_in_front_within_bounds(fern) -> None:

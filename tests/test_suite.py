@@ -38,7 +38,7 @@ from scenelabel.data.synthetic import (
 )
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
-from scenelabel.geometry.frame import FORWARD_FALLBACK_FAR_FACTOR, forward_rig
+from scenelabel.geometry.frame import forward_rig, near_far_or_fallback
 from scenelabel.geometry.warps import capture_reference
 
 VOCAB = {c.id for c in SUITE_CLASSES}
@@ -223,8 +223,8 @@ def test_suite_rooms_are_not_forward_facing_and_the_forward_rooms_are(rooms):
         assert steps.max() <= 0.35, spec.name  # serpentine: a held-out view sits between its neighbours
         depth = _depth_maps(scene, c2ws, 16, 12)
         assert np.median(depth) >= 2.0, spec.name  # the cameras look across the room, not at a near wall
-        spread = np.linalg.norm(eyes.max(0) - eyes.min(0))  # the far fallback reaches past the far walls
-        assert 2 * depth.max() < FORWARD_FALLBACK_FAR_FACTOR * spread, spec.name
+        _, far = near_far_or_fallback(cameras)  # the far fallback (no near/far given) reaches past the far walls
+        assert 2 * depth.max() < far.min(), spec.name
 
 
 def test_views_see_closed_room_with_vocabulary_labels(rooms):
