@@ -131,6 +131,10 @@ def test_walls_are_the_peaks_that_stand_out_of_the_cuts_on_the_walls_across():
     few = np.concatenate([np.column_stack([np.zeros(9), y]), np.column_stack([np.full(9, 0.0699), y])])
     walls = _walls(few)[1]
     assert any(w.axis == 0 and 0.0 <= w.offset <= 0.0699 and w.support == 18 for w in walls)
+    # no cuts at all (a starting up from which no floor-boundary ray meets the floor: a video's SfM
+    # room once crashed here): no walls, and the identity
+    rotation, walls = _walls(np.zeros((0, 2)))
+    assert walls == () and np.array_equal(rotation, np.eye(2))
 
 
 def test_plane_offset_finds_the_height_where_the_rays_from_many_cameras_agree():

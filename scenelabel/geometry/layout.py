@@ -402,7 +402,9 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     of a coordinate whose cuts within WALL_BAND, less the count an even spread at the mean density
     of the surrounding metre would put there (the cuts on the walls across the axis), are at least
     MIN_WALL_SUPPORT of all, largest first, each at least _WALL_GAP from a larger one, placed at the
-    median of those cuts."""
+    median of those cuts. No cuts: the identity and no walls."""
+    if len(points) == 0:
+        return np.eye(2), ()
     angles = np.radians(np.arange(0.0, 90.0, 0.25))
 
     def rotation(t: float) -> np.ndarray:
@@ -520,7 +522,7 @@ def _layout_from(
     )
     lift = float(centre @ up)
     return RoomLayout(up=up, floor=floor + lift, ceiling=None if ceiling is None else ceiling + lift, basis=basis,
-                      walls=walls, on_walls=float(on_walls.mean()))
+                      walls=walls, on_walls=float(on_walls.mean()) if len(q) else 0.0)
 
 
 def depth_from_layout(
