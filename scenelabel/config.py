@@ -125,6 +125,11 @@ class SamplingConfig:
     # GRID_DECAY_WITH_DEPTH where the training rays carry sensor depth (and train.depth_weight > 0),
     # else GRID_DECAY; the build saves the number it chose
     grid_decay: float | str = "auto"
+    # each training step's samples also raise their cells' remembered density to the largest σ seen
+    # there, besides the refreshes' one random point per cell: a thin part the training rays find (a
+    # lamp's pole) keeps its cells while it forms, where a random point would mostly miss it
+    # (docs/suite.md, variant no-grid-from-training)
+    grid_from_training: bool = True
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -159,6 +164,8 @@ class SamplingConfig:
         decay = self.grid_decay
         if decay != AUTO and (isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1)):
             raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
+        if not isinstance(self.grid_from_training, bool):
+            raise ConfigError(f"sampling.grid_from_training must be true or false, got {self.grid_from_training!r}")
         end = self.depth_ray_end
         if isinstance(end, bool) or not (isinstance(end, (int, float)) and math.isfinite(end) and end >= 0):
             raise ConfigError(f"sampling.depth_ray_end must be a finite number >= 0, got {end!r}")

@@ -117,7 +117,8 @@ def test_render_rays_matches_a_naive_float64_loop():
 
 def test_render_rays_evaluates_only_intervals_of_length_in_occupied_space():
     """The field sees each ray's intervals of positive length whose middle the grid holds
-    occupied, nothing else; rays with no such interval composite to nothing."""
+    occupied, nothing else (the samples it reports are those, with their σ); rays with no such
+    interval composite to nothing."""
     field = SlabField(sigma=4.0)
     o, d, t_min, t_max = rays()
     t_max = torch.where(torch.arange(len(t_max)) % 3 == 0, t_min, t_max)  # every third ray: an empty interval
@@ -127,7 +128,9 @@ def test_render_rays_evaluates_only_intervals_of_length_in_occupied_space():
     for a, b, origin, direction in zip(t_min.tolist(), t_max.tolist(), o, d):
         middles = interval_middles(a, b, step, 64)
         expected += int(not_left_half(origin + middles[:, None] * direction).sum())
-    assert out.n_evaluated == field.calls == expected
+    assert out.n_evaluated == field.calls == expected == len(out.sample_points) == len(out.sample_sigmas)
+    assert not_left_half(out.sample_points).all()
+    torch.testing.assert_close(out.sample_sigmas, SlabField(sigma=4.0).features(out.sample_points)[0])
     empty = torch.arange(len(t_max)) % 3 == 0
     torch.testing.assert_close(out.opacity[empty], torch.zeros(int(empty.sum())))
     none = render_rays(field, not_left_half, o, d, t_max + 1, t_max, Marching(step, 64))  # no interval at all

@@ -111,6 +111,32 @@ def test_grid_update_marks_dense_cells_only():
     assert 0 < grid.occupied_fraction < 0.2
 
 
+
+def test_grid_observe_keeps_the_densest_sample_of_each_cell():
+    """observe raises each cell's remembered density to the largest σ of the samples inside it (a
+    float64 loop over the samples), ignores samples outside the box, and a cell held so survives a
+    refresh whose random point misses what made it dense (a thin pole the training rays find)."""
+    aabb = torch.tensor([[-2.0] * 3, [2.0] * 3])
+    r = 4
+    grid = DensityGrid(BoxWarp(aabb), resolution=r, step=0.01, alpha_threshold=0.01)
+    grid.update(lambda p: torch.zeros(len(p)), decay=0.5, generator=torch.Generator().manual_seed(0))
+    assert grid.occupied_fraction == 0.0
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-2.5, 2.5, (200, 3))  # some outside the box
+    sigmas = rng.uniform(0.0, 10.0, 200) ** 3
+    grid.observe(torch.tensor(points, dtype=torch.float32), torch.tensor(sigmas, dtype=torch.float32))
+    expected = np.zeros((r, r, r))
+    for p, sigma in zip(points, sigmas):
+        if np.all(p >= -2.0) and np.all(p < 2.0):
+            i, j, k = ((p + 2.0) / 4.0 * r).astype(int)
+            expected[i, j, k] = max(expected[i, j, k], sigma)
+    np.testing.assert_allclose(grid.density.numpy(), expected, rtol=1e-6)
+    threshold = float(grid.sigma_threshold.flatten()[0])
+    grid.update(lambda p: torch.zeros(len(p)), decay=0.5, generator=torch.Generator().manual_seed(1))
+    np.testing.assert_array_equal(grid.bits.numpy(), 0.5 * expected > threshold)
+    assert grid.bits.any()
+
+
 # ------------------------------------------------------------------ disparity marching, march()
 
 

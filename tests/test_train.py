@@ -299,6 +299,26 @@ def test_grid_refreshes_decay_by_sampling_grid_decay(scene, monkeypatch):
     torch.testing.assert_close(trainer.grid.density, 0.5 * before)
 
 
+
+@pytest.mark.parametrize("from_training", [True, False])
+def test_training_samples_raise_the_density_grid_between_refreshes(scene, from_training):
+    """With sampling.grid_from_training a step's samples raise their cells' remembered density (never
+    lower it), and only in occupied cells, where samples go; without it the grid waits for its refresh."""
+    config = preset("quick", {"sampling": {"grid_from_training": from_training}})
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    sc = trainer.config.sampling
+    for _ in range(sc.grid_warmup + 1):  # past the first refresh: every cell's density is finite
+        trainer.train_step()
+    before = trainer.grid.density.clone()
+    trainer.train_step()  # not a refresh step
+    after = trainer.grid.density
+    if not from_training:
+        torch.testing.assert_close(after, before)
+        return
+    raised = after > before
+    assert torch.all(after >= before) and raised.any()
+    assert torch.all(trainer.grid.bits[raised])
+
 def test_masked_pixels_give_no_training_rays(scene):
     loaded = load_scene(scene)
     masks = [np.zeros(im.shape[:2], bool) for im in loaded.images]

@@ -47,6 +47,7 @@ VARIANTS: dict[str, dict] = {
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
     "steps-192": {"sampling": {"n_steps": 192}},  # the fast preset's marching before 288
+    "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the density grid of random points alone
     "planes-256": {"field": {"resolutions": [64, 256]}},
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
@@ -59,6 +60,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth": {"capture": "phone-depth"},
     "phone-depth-rgbd": {"capture": "phone-depth", "preset": "rgbd"},
     "phone-depth-rgbd-1200": {"capture": "phone-depth", "preset": "rgbd", "train": {"steps": 1200, "time_budget": 80.0}},
+    "phone-depth-3000": {"capture": "phone-depth", "train": {"steps": 3000}},
     "phone-depth-2000": {"capture": "phone-depth", "train": {"steps": 2000}},
     "phone-depth-1600": {"capture": "phone-depth", "train": {"steps": 1600}},
     "phone-depth-1300": {"capture": "phone-depth", "train": {"steps": 1300}},
@@ -81,6 +83,7 @@ NOTES: dict[str, str] = {
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
+    "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false; the default before): training samples do not keep their cells",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
 DEPTH_NOTES: dict[str, str] = {
@@ -88,6 +91,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-rgbd": "`--preset rgbd`",
     "phone-depth-rgbd-1200": "`--preset rgbd` with 1200 steps, at most 80 s of training",
     "phone-depth-2000": "the default preset with 2000 steps (`train.steps`; the default before \"auto\")",
+    "phone-depth-3000": "the default preset with up to 3000 steps (`train.steps`): the time plan of `train.time_budget` \"auto\" ends training first",
     "phone-depth-1600": "the default preset with 1600 steps",
     "phone-depth-1300": "the default preset with 1300 steps",
     "phone-depth-decay-0.95": "the density grid's remembered density decaying 0.95 per refresh (`sampling.grid_decay`; default \"auto\": 0.8 with sensor depth, 0.95 without)",

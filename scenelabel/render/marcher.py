@@ -93,6 +93,9 @@ class RayBundleOutput:
     distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
     t_opaque: torch.Tensor  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
     front_weight: torch.Tensor | None = None  # [n_rays] Σ w_i over samples ending before options.free_until
+    # the evaluated samples (render_rays only): their points [k, 3] (world) and σ [k], no gradient
+    sample_points: torch.Tensor | None = None
+    sample_sigmas: torch.Tensor | None = None
 
 
 def ray_intervals(
@@ -157,8 +160,10 @@ def render_rays(
     points = origins.index_select(0, rows) + t_mids[:, None] * directions.index_select(0, rows)  # [m, 3]
     keep = occupancy(points).nonzero().squeeze(1)  # [k]
     rows, cols = rows.index_select(0, keep), cols.index_select(0, keep)
-    samples = _evaluate(field, points.index_select(0, keep), directions.index_select(0, rows), options.with_rgb)
-    return _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
+    points = points.index_select(0, keep)
+    samples = _evaluate(field, points, directions.index_select(0, rows), options.with_rgb)
+    out = _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
+    return replace(out, sample_points=points, sample_sigmas=samples[0].detach())
 
 
 def render_rays_early_stop(

@@ -439,6 +439,16 @@ class DensityGrid(nn.Module):
         self.bits = (self.density > self.sigma_threshold) & ~self.carved
 
     @torch.no_grad()
+    def observe(self, points: torch.Tensor, sigmas: torch.Tensor) -> None:
+        """Raise each cell's remembered density to the largest ``sigmas`` [n] seen at ``points`` [n, 3]
+        (world) inside it, e.g. a training step's samples; the occupancy bits change at the next refresh."""
+        cells = cell_indices(self.resolution, self.warp(points.detach()))
+        inside = cells >= 0
+        density = self.density.flatten()
+        density.scatter_reduce_(0, cells[inside].to(density.device), sigmas.detach().float()[inside], "amax")
+        self.density = density.reshape(self.density.shape)
+
+    @torch.no_grad()
     def rebuild(
         self,
         density_fn: Callable[[torch.Tensor], torch.Tensor],

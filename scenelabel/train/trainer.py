@@ -414,6 +414,8 @@ class Trainer:
             r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
             CompositeOptions(background, True, tc.detach_semantic_weights, free_until), solid_offsets=solid_offsets,
         )
+        if sc.grid_from_training and out.sample_points is not None:  # each rank its own; the refresh keeps rank 0's
+            self.grid.observe(out.sample_points, out.sample_sigmas)
         target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
         mse = photometric_mse(out.rgb, target_rgb)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
