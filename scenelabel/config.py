@@ -188,9 +188,9 @@ geometry and labels on the suite's rooms (docs/depth_grid_decay.md)."""
 STEPS = 2000
 """``train.steps`` "auto", with sensor depth or without. Builds with phone-like depth once stopped at
 1600 steps (the depth terms make surfaces early: docs/depth_step_count.md); since the marching went
-to 288 steps (docs/suite.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
+to 288 steps (docs/suite_steps.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
 the twelve suite rooms, with builds of 55-72 s at 160x120, well within BUILD_SECONDS_WITH_DEPTH
-(docs/depth_2000.md against docs/suite.md's phone-depth rows)."""
+(docs/depth_2000.md against docs/suite_steps.md's phone-depth rows)."""
 
 TIME_BUDGET = 150.0
 """``train.time_budget`` "auto" (the fast preset's) without sensor depth: seconds of training."""

@@ -356,8 +356,9 @@ class DensityGrid(nn.Module):
     """A [R, R, R] grid over the field's cube (its warp's [-1, 1]^3) marking cells that may hold density.
 
     Each cell keeps an exponential moving average of the largest density seen at random points
-    inside it; a cell is occupied when that density could make a marching step at least
-    ``alpha_threshold`` opaque. Until the first update every cell is occupied, except cells
+    inside it (:meth:`update`), and at the samples a training step marched there (:meth:`observe`);
+    a cell is occupied when that density could make a marching step at least ``alpha_threshold``
+    opaque. Until the first update every cell is occupied, except cells
     :meth:`carve` marks empty (sensor depth saw through them), which stay empty. Cells live in
     the warp's cube (:mod:`scenelabel.geometry.warps`): for a box warp they are boxes, for a forward warp
     frustum slices that grow with depth.
