@@ -125,11 +125,11 @@ class SamplingConfig:
     # GRID_DECAY_WITH_DEPTH where the training rays carry sensor depth (and train.depth_weight > 0),
     # else GRID_DECAY; the build saves the number it chose
     grid_decay: float | str = "auto"
-    # each training step's samples also raise their cells' remembered density to the largest σ seen
-    # there, besides the refreshes' one random point per cell: a thin part the training rays find (a
-    # lamp's pole) keeps its cells while it forms, where a random point would mostly miss it
-    # (docs/suite.md, variant no-grid-from-training)
-    grid_from_training: bool = True
+    # true: each training step's samples also raise their cells' remembered density to the largest σ
+    # seen there, besides the refreshes' one random point per cell. Measured and left off: no better
+    # on the suite's rooms, and it did not keep tools/bench.py's lamp pole (docs/suite_grid.md, where
+    # it was on and variant no-grid-from-training off; docs/bench_grid.md; docs/models.md)
+    grid_from_training: bool = False
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -188,9 +188,11 @@ geometry and labels on the suite's rooms (docs/depth_grid_decay.md)."""
 STEPS = 2000
 """``train.steps`` "auto", with sensor depth or without. Builds with phone-like depth once stopped at
 1600 steps (the depth terms make surfaces early: docs/depth_step_count.md); since the marching went
-to 288 steps (docs/suite_steps.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
+to 288 steps (docs/suite.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
 the twelve suite rooms, with builds of 55-72 s at 160x120, well within BUILD_SECONDS_WITH_DEPTH
-(docs/depth_2000.md against docs/suite_steps.md's phone-depth rows)."""
+(docs/depth_2000.md against docs/suite.md's phone-depth rows). Up to 3000 steps with depth (the
+plan ending them at 2482-2741) gave mIoU within 0.0013 of 2000's on three rooms, in builds of 84-85 s
+against 62-67 s (docs/suite_grid_first.md, variant phone-depth-3000)."""
 
 TIME_BUDGET = 150.0
 """``train.time_budget`` "auto" (the fast preset's) without sensor depth: seconds of training."""

@@ -80,6 +80,7 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"grid_decay": 0.0}},
         {"sampling": {"grid_decay": 1.5}},
         {"sampling": {"grid_decay": "fast"}},
+        {"sampling": {"grid_from_training": "yes"}},
         {"sampling": {"depth_carve_until": 1.5}},
         {"sampling": {"depth_ray_end": float("inf")}},
         {"sampling": {"depth_ray_end": True}},
@@ -97,7 +98,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|depth_carve_until|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start"):
         preset("fast", overrides)
 
 

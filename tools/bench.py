@@ -84,8 +84,9 @@ VARIANTS: dict[str, dict] = {
     "black-bg+distortion": {"train": {"background": None, "distortion_weight": 0.002}},
     # sampling: the fast preset's marching before 288 steps across the box
     "steps-192": {"sampling": {"n_steps": 192}},
-    # the density grid refreshed from random points alone, as before training samples fed it
+    # the density grid refreshed from random points alone (the default), or also raised by training samples
     "no-grid-from-training": {"sampling": {"grid_from_training": False}},
+    "grid-from-training": {"sampling": {"grid_from_training": True}},
 }
 
 

@@ -47,7 +47,8 @@ VARIANTS: dict[str, dict] = {
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
     "steps-192": {"sampling": {"n_steps": 192}},  # the fast preset's marching before 288
-    "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the density grid of random points alone
+    "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the default since docs/suite_grid.md
+    "grid-from-training": {"sampling": {"grid_from_training": True}},  # the default of docs/suite_grid.md's run
     "planes-256": {"field": {"resolutions": [64, 256]}},
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
@@ -83,7 +84,8 @@ NOTES: dict[str, str] = {
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
-    "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false; the default before): training samples do not keep their cells",
+    "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
+    "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
 DEPTH_NOTES: dict[str, str] = {
