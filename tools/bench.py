@@ -87,6 +87,8 @@ VARIANTS: dict[str, dict] = {
     # the density grid refreshed from random points alone (the default), or also raised by training samples
     "no-grid-from-training": {"sampling": {"grid_from_training": False}},
     "grid-from-training": {"sampling": {"grid_from_training": True}},
+    # the density grid's decay without depth: "auto" gives 0.8 to a build whose only depth is its room layout
+    "decay-0.95": {"sampling": {"grid_decay": 0.95}},
 }
 
 

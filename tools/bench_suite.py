@@ -40,6 +40,7 @@ VARIANTS: dict[str, dict] = {
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
     "decay-0.8": {"sampling": {"grid_decay": 0.8}},
+    "decay-0.95": {"sampling": {"grid_decay": 0.95}},  # "auto" gives layout-depth builds 0.8, as sensor depth
     "voxels": {"preset": "voxels"},
     "fast": {"preset": "fast"},
     "voxels-budget": {"preset": "voxels", "train": {"time_budget": "auto"}},  # the default build's time
