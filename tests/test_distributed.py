@@ -34,10 +34,11 @@ def _lockstep_worker(rank: int, world_size: int, init_file: str, scene_dir: str,
 
     torch.set_num_threads(1)
     dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world_size)
+    context = DistContext(rank=rank, world_size=world_size, owns_group=True)  # leave() ends it, as a build's
+    trainer = None
     try:
         # a grid update every 4 steps from step 4 on: the grid is exercised within the few steps
         config = preset("quick", {"train": {"steps": steps, "batch_rays": 256}, "sampling": {"grid_warmup": 4, "grid_update_every": 4}})
-        context = DistContext(rank=rank, world_size=world_size)
         trainer, _, _ = prepare_training(load_scene(scene_dir), config, torch.device("cpu"), context)
         assert isinstance(trainer.render, torch.nn.parallel.DistributedDataParallel)
         assert trainer.batch_rays == 128
@@ -57,7 +58,11 @@ def _lockstep_worker(rank: int, world_size: int, init_file: str, scene_dir: str,
         Path(out).write_text(json.dumps({"identical": identical, "picks_differ": picks_differ, "steps": trainer.state.step}))
         dist.barrier()  # both ranks done before either tears gloo down (a rank leaving early can abort the other)
     finally:
-        dist.destroy_process_group()
+        if trainer is not None:
+            trainer.drop_data_parallel()
+            assert not isinstance(trainer.render, torch.nn.parallel.DistributedDataParallel)
+        leave(context)
+        assert not dist.is_initialized()
 
 
 def test_two_gloo_processes_train_in_lockstep(tmp_path):

@@ -13,6 +13,7 @@ process is world size 1.
 
 from __future__ import annotations
 
+import gc
 import os
 from dataclasses import dataclass
 
@@ -71,8 +72,15 @@ def init_from_env(device: torch.device) -> tuple[DistContext, torch.device]:
 
 
 def leave(context: DistContext) -> None:
-    """End the process group :func:`init_from_env` joined (a group the caller made is left alone)."""
+    """End the process group :func:`init_from_env` joined (a group the caller made is left alone).
+
+    Drop every DistributedDataParallel wrapper first (:meth:`scenelabel.train.trainer.Trainer.drop_data_parallel`):
+    a wrapper holds the group, and a gloo group that outlives this call is freed at interpreter exit, where
+    its threads can abort the process ("terminate called without an active exception", SIGABRT) after all
+    the work is done. The collection here frees wrappers caught in reference cycles while the interpreter runs.
+    """
     if context.owns_group and dist.is_initialized():
+        gc.collect()
         dist.destroy_process_group()
 
 

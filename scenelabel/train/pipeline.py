@@ -576,6 +576,7 @@ def build(
     dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     context, dev = init_from_env(dev)
     ckpt_path = out_dir / CHECKPOINT_NAME
+    trainer = None
     try:
         trainer, static, test_idx = prepare_training(scene, config, dev, context, progress)
         static["preset_choice"] = preset_choice
@@ -602,6 +603,8 @@ def build(
         kept = f"; the last checkpoint before the failure is kept at {ckpt_path}" if ckpt_path.exists() else ""
         raise TrainingError(f"{err}{kept}") from None
     finally:
+        if trainer is not None:
+            trainer.drop_data_parallel()
         leave(context)
     if not context.is_main:  # rank 0 alone evaluates and writes
         return BuildResult(field=None, metrics=_training_metrics(trainer), out_dir=out_dir)

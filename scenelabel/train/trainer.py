@@ -489,6 +489,12 @@ class Trainer:
         if "generator" in data:
             self.generator.set_state(data["generator"])
 
+    def drop_data_parallel(self) -> None:
+        """Unwrap the DistributedDataParallel render: training with the other ranks is over, and the
+        wrapper holds the process group (:func:`scenelabel.train.distributed.leave` says why that matters)."""
+        if isinstance(self.render, nn.parallel.DistributedDataParallel):
+            self.render = self.render.module
+
     def run(self, on_checkpoint: Callable[["Trainer"], None] | None = None, progress: bool = True) -> TrainState:
         """Train until ``steps`` or the time budget; calls ``on_checkpoint`` every checkpoint_every steps.
 
