@@ -238,7 +238,9 @@ def test_baked_points_answer_as_the_field(fields):
     want = field.query_points(pts)
     got, got_fine = baked.query_points(pts), fine.query_points(pts)
     np.testing.assert_array_equal(got.class_ids, want.class_ids)
-    assert np.all(got.label[~field._inside(pts)] == UNKNOWN)
+    outside = ~field._inside(pts)  # FREE where a training camera saw through, else UNKNOWN: as the field
+    np.testing.assert_array_equal(got.label[outside], want.label[outside])
+    assert set(got.label[outside].tolist()) == {FREE, UNKNOWN}
     agree, agree_fine = np.mean(got.label == want.label), np.mean(got_fine.label == want.label)
     assert agree > 0.9 and agree_fine > 0.97 and agree_fine >= agree  # a finer lattice follows the field closer
     np.testing.assert_allclose(got.probs.sum(-1)[field._inside(pts)], 1.0, atol=1e-9)
@@ -329,6 +331,23 @@ def test_saved_baked_field_answers_the_same(tmp_path, scores):
     zarr.open_group(str(tmp_path / "other.zarr"), mode="w").attrs["format"] = "something.else"
     with pytest.raises(InputError, match="expected 'scenelabel.baked_field'"):
         BakedField.load(tmp_path / "other.zarr")
+
+
+def test_a_saved_baked_field_keeps_the_training_cameras(fields, tmp_path):
+    """Outside the bounds a loaded BakedField answers FREE where the field's training cameras saw
+    through, as before saving; cameras with unknown near / far (NaN) survive the zarr attributes."""
+    field, baked, _ = fields
+    loaded = BakedField.load(baked.save(tmp_path / "toy.zarr"))
+    np.testing.assert_array_equal(loaded.train_cameras.c2w, field.training_cameras().c2w)
+    pts = np.random.default_rng(5).uniform(field.aabb[0] - 1.0, field.aabb[1] + 1.0, (5000, 3))
+    np.testing.assert_array_equal(loaded.query_points(pts).label, baked.query_points(pts).label)
+    cams = field.training_cameras()
+    cams.near[:], cams.far[:] = np.nan, np.nan
+    unknown_limits = BakedField((baked.density, baked.class_values, baked.corner, baked.voxel_size), baked.aabb,
+                                baked.classes, (baked.occupancy_delta, baked.step, baked.scores), cams)
+    again = BakedField.load(unknown_limits.save(tmp_path / "nan.zarr"))
+    assert np.all(np.isnan(again.train_cameras.near)) and np.all(np.isnan(again.train_cameras.far))
+    np.testing.assert_array_equal(again.query_points(pts).label, unknown_limits.query_points(pts).label)
 
 
 def test_a_saved_baked_field_answers_without_torch(tmp_path):

@@ -65,6 +65,28 @@ def test_query_points_inside_boxes_and_above(toy_build):
     assert far_away.label[0] == UNKNOWN and far_away.density[0] == 0.0
 
 
+def test_outside_the_bounds_what_a_training_camera_saw_through_is_free(toy_build):
+    """query_points outside the modelled bounds: FREE halfway between a training camera and where
+    its optical axis enters the bounds; everywhere outside, FREE exactly where seen_before_bounds
+    says (the rest UNKNOWN)."""
+    from scenelabel.geometry.boxes import ray_box_distances
+    from scenelabel.maps.visibility import seen_before_bounds
+
+    field = SemanticField.load(toy_build.out_dir)
+    cams = field.training_cameras()
+    centres, axes = cams.c2w[:, :3, 3], cams.c2w[:, :3, 2]
+    t_enter, t_exit = ray_box_distances(centres, axes, *field.aabb)
+    looking_in = (t_exit >= t_enter) & (t_enter > 0.5)
+    assert looking_in.sum() >= 3  # the toy's cameras stand outside the bounds
+    halfway = centres[looking_in] + 0.5 * t_enter[looking_in, None] * axes[looking_in]
+    assert np.all(field.query_points(halfway).label == FREE)
+    pts = np.random.default_rng(6).uniform(field.aabb[0] - 2.0, field.aabb[1] + 2.0, (20000, 3))
+    outside = ~field._inside(pts)
+    seen = seen_before_bounds(pts[outside], cams, field.aabb)
+    np.testing.assert_array_equal(field.query_points(pts[outside]).label, np.where(seen, FREE, UNKNOWN))
+    assert 0 < seen.sum() < len(seen)
+
+
 def test_query_rays_depth_and_label(toy_build):
     field = SemanticField.load(toy_build.out_dir)
     box = box_by_class(3)

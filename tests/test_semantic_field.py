@@ -29,7 +29,8 @@ def test_query_points_shapes_and_ranges(field):
     assert q.probs.shape == (500, 3) and q.class_ids.tolist() == [1, 3, 7]
     assert np.all((q.occupancy >= 0) & (q.occupancy <= 1))
     inside = np.all((pts >= field.aabb[0]) & (pts <= field.aabb[1]), axis=1)
-    assert np.all(q.label[~inside] == UNKNOWN)
+    assert set(np.unique(q.label[~inside]).tolist()) == {FREE, UNKNOWN}  # FREE where a training camera saw through
+    assert np.all(q.density[~inside] == 0) and np.all(q.probs[~inside] == 0)
     assert set(np.unique(q.label[inside]).tolist()) <= {FREE, 1, 3, 7}
     np.testing.assert_allclose(q.probs[inside].sum(-1), 1.0, atol=1e-9)
     np.testing.assert_allclose(q.occupancy, -np.expm1(-q.density * field.occupancy_delta))

@@ -18,6 +18,7 @@ from scenelabel.maps.visibility import (
     observed_voxels,
     project_points,
     scaled_cameras,
+    seen_before_bounds,
     surface_mask,
     visible_from_cameras,
 )
@@ -37,35 +38,70 @@ def three_cameras() -> Cameras:
     )
 
 
+def naive_projection(cameras, i, p, use_near=True):
+    """Camera i's pixel (u, v) of point p and its distance d, or None where the rule's steps 1-2
+    reject it (without ``use_near``: only the far limit); plain Python."""
+    R, t = cameras.c2w[i, :3, :3], cameras.c2w[i, :3, 3]
+    rel = [p[a] - t[a] for a in range(3)]
+    cam = [sum(R[r, c] * rel[r] for r in range(3)) for c in range(3)]  # R^T (p - t)
+    if cam[2] <= 0:
+        return None
+    a, b = cam[0] / cam[2], cam[1] / cam[2]
+    k1, k2, p1, p2 = cameras.distortion[i]  # OpenCV's projectPoints, four coefficients
+    r2 = a * a + b * b
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    a, b = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a), b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+    u = cameras.fx[i] * a + cameras.cx[i]
+    v = cameras.fy[i] * b + cameras.cy[i]
+    if not (0 <= u < cameras.width[i] and 0 <= v < cameras.height[i]):
+        return None
+    d = math.sqrt(sum(x * x for x in rel))
+    near = cameras.near[i] if math.isfinite(cameras.near[i]) and use_near else 0.0
+    far = cameras.far[i] if math.isfinite(cameras.far[i]) else math.inf
+    return (u, v, d) if near <= d <= far else None
+
+
 def naive_visible(points, cameras, depth_maps, margin, pixel_margin=1.0):
     """The rule of scenelabel.maps.visibility, one point and one camera at a time, plain Python."""
     out = []
     for p in points:
         seen = False
         for i in range(len(cameras)):
-            R, t = cameras.c2w[i, :3, :3], cameras.c2w[i, :3, 3]
-            rel = [p[a] - t[a] for a in range(3)]
-            cam = [sum(R[r, c] * rel[r] for r in range(3)) for c in range(3)]  # R^T (p - t)
-            if cam[2] <= 0:
+            hit = naive_projection(cameras, i, p)
+            if hit is None:
                 continue
-            a, b = cam[0] / cam[2], cam[1] / cam[2]
-            k1, k2, p1, p2 = cameras.distortion[i]  # OpenCV's projectPoints, four coefficients
-            r2 = a * a + b * b
-            radial = 1.0 + k1 * r2 + k2 * r2 * r2
-            a, b = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a), b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
-            u = cameras.fx[i] * a + cameras.cx[i]
-            v = cameras.fy[i] * b + cameras.cy[i]
-            if not (0 <= u < cameras.width[i] and 0 <= v < cameras.height[i]):
-                continue
-            d = math.sqrt(sum(x * x for x in rel))
-            near = cameras.near[i] if math.isfinite(cameras.near[i]) else 0.0
-            far = cameras.far[i] if math.isfinite(cameras.far[i]) else math.inf
-            if not near <= d <= far:
-                continue
+            u, v, d = hit
             surface = depth_maps[i][math.floor(v), math.floor(u)]
             if d <= surface + margin + pixel_margin * d / min(cameras.fx[i], cameras.fy[i]):
                 seen = True
                 break
+        out.append(seen)
+    return np.array(out, dtype=bool)
+
+
+def naive_seen_before_bounds(points, cameras, lo, hi):
+    """seen_before_bounds one point and one camera at a time: the line c + s (p - c) clipped to
+    the box slab by slab (plain Python); p is seen free when the line enters the box at s > 1."""
+    out = []
+    for p in points:
+        seen = False
+        if not all(lo[a] <= p[a] <= hi[a] for a in range(3)):
+            for i in range(len(cameras)):
+                if naive_projection(cameras, i, p, use_near=False) is None:
+                    continue
+                c = cameras.c2w[i, :3, 3]
+                s_in, s_out = -math.inf, math.inf
+                for a in range(3):
+                    step = p[a] - c[a]
+                    if step == 0:
+                        if not lo[a] <= c[a] <= hi[a]:
+                            s_in, s_out = math.inf, -math.inf
+                        continue
+                    s0, s1 = (lo[a] - c[a]) / step, (hi[a] - c[a]) / step
+                    s_in, s_out = max(s_in, min(s0, s1)), min(s_out, max(s0, s1))
+                if s_out >= s_in and s_in > 1.0:
+                    seen = True
+                    break
         out.append(seen)
     return np.array(out, dtype=bool)
 
@@ -175,6 +211,49 @@ def _front_depth_naive(depth: np.ndarray) -> np.ndarray:
                 smooth = smooth and np.isfinite(bend) and abs(bend) <= 0.1 * d
             out[r, c] = 0.5 * (d + low) if smooth else low
     return out
+
+
+def test_seen_before_bounds_hand_built():
+    """A camera 2 m in front of the unit box looking at it: the stretch before the box is seen
+    free; the box, what lies behind it, beside the image and behind the camera is not; a
+    camera inside the box sees nothing outside it as free."""
+    lo, hi = np.zeros(3), np.ones(3)
+    cams = Cameras.create(cv_look_at((0.5, -2.0, 0.5), (0.5, 0.5, 0.5))[None], fx=[20.0], fy=[20.0], cx=[10.0], cy=[10.0],
+                          width=[20], height=[20], near=[0.1], far=[np.nan])
+    points = np.array([
+        [0.5, -1.0, 0.5],   # between the camera and the box: seen free
+        [0.5, -0.01, 0.5],  # just before the box face
+        [0.5, 0.5, 0.5],    # inside the box: the field answers
+        [0.5, 2.0, 0.5],    # behind the box
+        [0.5, -2.05, 0.5],  # behind the camera
+        [0.5, -1.95, 0.5],  # in front of the camera, closer than near: free too
+        [3.0, -1.0, 0.5],   # outside the image
+        [1.2, -0.5, 1.2],   # in the image, but its ray passes beside the box
+        [0.5, -1.0, 0.6],   # seen free, but beyond far (below)
+    ])
+    np.testing.assert_array_equal(seen_before_bounds(points, cams, np.stack([lo, hi])),
+                                  [True, True, False, False, False, True, False, False, True])
+    cams.far[:] = 0.9
+    assert seen_before_bounds(points, cams, np.stack([lo, hi])).tolist() == [False, False, False, False, False, True,
+                                                                              False, False, False]
+    inside = Cameras.create(cv_look_at((0.5, 0.5, 0.5), (0.5, 2.0, 0.5))[None], fx=[20.0], fy=[20.0], cx=[10.0], cy=[10.0],
+                            width=[20], height=[20], near=[np.nan], far=[np.nan])
+    assert not seen_before_bounds(np.array([[0.5, 1.5, 0.5]]), inside, np.stack([lo, hi])).any()
+
+
+def test_seen_before_bounds_matches_naive_loop():
+    cams = three_cameras()
+    rng = np.random.default_rng(3)
+    lo, hi = np.array([-0.6, -0.5, -0.4]), np.array([0.7, 0.5, 0.9])
+    # on lines from each camera to points of the box (before, in and beyond it), and anywhere
+    centres = cams.c2w[rng.integers(0, len(cams), 2000), :3, 3]
+    targets = rng.uniform(lo, hi, (2000, 3))
+    points = np.concatenate([centres + rng.uniform(0.05, 1.6, (2000, 1)) * (targets - centres), rng.uniform(-5, 5, (1000, 3))])
+    points[:20, 0] = lo[0]  # on a face (inside) and just beside one
+    points[20:40, 0] = hi[0] + 1e-9
+    got = seen_before_bounds(points, cams, np.stack([lo, hi]))
+    np.testing.assert_array_equal(got, naive_seen_before_bounds(points, cams, lo, hi))
+    assert 300 < got.sum() < len(points) - 300  # both answers occur
 
 
 def test_front_depth_on_a_grazing_floor_a_silhouette_and_the_sky():

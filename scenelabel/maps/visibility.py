@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.boxes import ray_box_distances
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lattice import voxel_centers
 from scenelabel.geometry.lens import FISHEYE, inside_image, project_points
@@ -67,6 +68,7 @@ __all__ = [
     "observed_voxels",
     "project_points",
     "scaled_cameras",
+    "seen_before_bounds",
     "surface_mask",
     "visible_from_cameras",
 ]
@@ -217,6 +219,51 @@ def _visible_compiled(
         visibility_kernels.visibility_kernel(points[rows], c2w, lens, limits, depth, offsets, margins, seen[rows])
 
     raycast_kernels.in_threads(run, len(points))
+    return seen
+
+
+def seen_before_bounds(points: Any, cameras: Cameras, aabb: Any) -> np.ndarray:
+    """Which points outside the modelled box some camera saw through on its way into the box
+    (docs/conventions.md, "Observed space outside the bounds").
+
+    The box holds the geometry the cameras observe, so the stretch of a camera's ray before it
+    enters the box crosses no surface: free space that camera saw. A point ``p`` outside the box
+    is seen free by camera ``c`` when rule 1 of the module docstring holds (``p`` projects into
+    ``c``'s image), its distance ``d`` is at most ``c``'s ``far`` (nearer than ``near`` is free too:
+    the camera's near bound says nothing lies there), and the ray from ``c``'s centre through ``p``
+    enters the box beyond it: ``d < t_enter``. A ray that misses the box gives
+    nothing (what it saw lies outside every observed surface's box: unknown), nor does a camera
+    inside the box (its rays leave the box before they reach ``p``).
+
+    Args:
+        points: [N, 3] world points.
+        cameras: the training cameras (world frame, OpenCV axes).
+        aabb: [2, 3] the box (min corner, max corner).
+    Returns:
+        [N] bool; False for points inside the box (the field answers there).
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo, hi = np.asarray(aabb, dtype=np.float64)
+    seen = np.zeros(len(points), dtype=bool)
+    todo = np.flatnonzero(~np.all((points >= lo) & (points <= hi), axis=1))
+    for i in range(len(cameras)):
+        if todo.size == 0:
+            break
+        uv, _, dist = project_points(
+            points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
+            cameras.distortion[i], str(cameras.model[i]),
+        )
+        far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
+        centre = cameras.c2w[i, :3, 3]
+        t_enter, t_exit = ray_box_distances(np.broadcast_to(centre, (todo.size, 3)), points[todo] - centre, lo, hi)
+        # directions p - c are not unit: t is in units of d, so the box starts beyond p where t_enter > 1
+        with np.errstate(invalid="ignore"):
+            hit = (
+                inside_image(uv, int(cameras.width[i]), int(cameras.height[i]))
+                & (dist > 0) & (dist <= far) & (t_exit >= t_enter) & (t_enter > 1.0)
+            )
+        seen[todo[hit]] = True
+        todo = todo[~hit]
     return seen
 
 

@@ -28,7 +28,9 @@ import numpy as np
 
 from scenelabel._version import __version__
 from scenelabel.errors import InputError
-from scenelabel.maps import ray_box_distances, uint8_from_unit
+from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_dict
+from scenelabel.maps import FREE, ray_box_distances, uint8_from_unit
+from scenelabel.maps.visibility import seen_before_bounds
 from scenelabel.maps.zarr_io import check_target, staged_group
 from scenelabel.query.answers import (
     PointQuery,
@@ -203,7 +205,10 @@ class BakedField:
             logits (``scores``, an eq. 3 field).
         corner: [3] world position of vertex [0, 0, 0] (the modelled bounds' minimum corner).
         voxel_size: vertex spacing, world units.
-        aabb: [2, 3] the modelled bounds (outside them: UNKNOWN, as the field answers).
+        aabb: [2, 3] the modelled bounds (outside them: FREE where a training camera saw through,
+            else UNKNOWN, as the field answers).
+        train_cameras: the field's training cameras (world frame), or None (outside the bounds:
+            UNKNOWN).
         class_ids: [C] external class id of each probability column.
         classes: class id -> name.
         occupancy_delta: δ in occupancy = 1 - exp(-density δ) (the field's).
@@ -217,9 +222,10 @@ class BakedField:
         aabb: np.ndarray,
         classes: dict[int, str],
         rendering: tuple[float, float, bool],
+        train_cameras: Cameras | None = None,
     ):
         """``lattice``: (density, class_values, corner, voxel_size); ``rendering``:
-        (occupancy_delta, step, scores), as the attributes."""
+        (occupancy_delta, step, scores); ``train_cameras``: as the attributes."""
         self.density, self.class_values = _check_lattice(lattice[0], lattice[1])
         self.corner = _lattice_frame(lattice[2], lattice[3])[:3]
         self.voxel_size = float(lattice[3])
@@ -229,6 +235,7 @@ class BakedField:
         if len(self.class_ids) != self.class_values.shape[3]:
             raise InputError(f"{len(self.class_ids)} classes for {self.class_values.shape[3]} class channels", field="classes")
         self.occupancy_delta, self.step, self.scores = float(rendering[0]), float(rendering[1]), bool(rendering[2])
+        self.train_cameras = train_cameras
         self.density.setflags(write=False)
         self.class_values.setflags(write=False)
 
@@ -292,7 +299,7 @@ class BakedField:
             block[:] = np.minimum(sigma_n * field.frame.scale, FLOAT32_MAX).reshape(block.shape)
             class_values[i : i + slab] = (logits if scores else uint8_from_unit(softmax64(logits))).reshape(*block.shape, -1)
         rendering = (field.occupancy_delta, field.marching.step / field.frame.scale, scores)
-        return cls((density, class_values, lo, voxel_size), field.aabb, field.classes, rendering)
+        return cls((density, class_values, lo, voxel_size), field.aabb, field.classes, rendering, field.training_cameras())
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the lattice as a zarr group (format 3), so another process can answer queries
@@ -302,7 +309,8 @@ class BakedField:
         nz+1, C] (uint8 codes, or float32 logits with ``scores``); group attributes ``format``
         (:data:`BAKED_FORMAT`), ``format_version``, ``scenelabel_version``, ``corner``,
         ``voxel_size``, ``aabb``, ``classes`` (``{"id": name}``, the channel order),
-        ``occupancy_delta``, ``step``, ``scores``. Written atomically (a failed write leaves
+        ``occupancy_delta``, ``step``, ``scores``, and ``train_cameras`` where the field stored them
+        (:func:`scenelabel.geometry.cameras.cameras_to_dict`). Written atomically (a failed write leaves
         ``path`` as it was).
 
         Args:
@@ -326,6 +334,8 @@ class BakedField:
             "step": self.step,
             "scores": self.scores,
         }
+        if self.train_cameras is not None:
+            attrs["train_cameras"] = cameras_to_dict(self.train_cameras)
         with staged_group(path) as tmp:
             group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
             group.attrs.update(attrs)
@@ -359,7 +369,9 @@ class BakedField:
             )
         lattice = (group["density"][...], group["class_values"][...], attrs["corner"], attrs["voxel_size"])
         classes = {int(cid): name for cid, name in attrs["classes"].items()}
-        return cls(lattice, np.asarray(attrs["aabb"]), classes, (attrs["occupancy_delta"], attrs["step"], attrs["scores"]))
+        rendering = (attrs["occupancy_delta"], attrs["step"], attrs["scores"])
+        cameras = cameras_from_dict(attrs["train_cameras"]) if "train_cameras" in attrs else None
+        return cls(lattice, np.asarray(attrs["aabb"]), classes, rendering, cameras)
 
     @property
     def nbytes(self) -> int:
@@ -375,7 +387,9 @@ class BakedField:
             PointQuery: density (trilinear, per world unit), occupancy 1 - exp(-density δ), probs
             [N, C] (the trilinear probabilities, normalised; for an eq. 3 field the softmax of
             the trilinear logits), label = class id where occupancy ≥ 0.5, FREE where lower,
-            UNKNOWN outside the modelled bounds (density, occupancy, probs 0 there).
+            outside the modelled bounds (density, occupancy, probs 0 there) FREE where a training
+            camera saw through the point (:func:`scenelabel.maps.visibility.seen_before_bounds`),
+            else UNKNOWN.
         """
         xyz = np.ascontiguousarray(checked_array(xyz, "xyz", 3))
         n, n_classes = len(xyz), len(self.class_ids)
@@ -392,6 +406,8 @@ class BakedField:
         _kernels().in_threads(run, n)
         occupancy = -np.expm1(-density * self.occupancy_delta)
         label = labels_from_answers(self.class_ids[top], occupancy, inside)
+        if self.train_cameras is not None:
+            label[seen_before_bounds(xyz, self.train_cameras, self.aabb)] = FREE
         return PointQuery(density, occupancy, probs, self.class_ids.copy(), label)
 
     def query_rays(self, origins, directions, near=None, far=None) -> RayQuery:

@@ -26,7 +26,8 @@ from scenelabel.geometry.cameras import Cameras, cameras_from_dict, opengl_to_op
 from scenelabel.geometry.frame import SceneFrame
 from scenelabel.geometry.rays import camera_directions_from_pixels, pixel_grid
 from scenelabel.geometry.warps import BoxWarp, warp_from_dict
-from scenelabel.maps import OccupancyMap
+from scenelabel.maps import FREE, OccupancyMap
+from scenelabel.maps.visibility import seen_before_bounds
 from scenelabel.query.answers import (
     PointQuery,
     RayQuery,
@@ -84,6 +85,7 @@ class SemanticField:
         self.aabb = np.asarray(meta["aabb_world"], np.float64)  # [2, 3] world bounds
         self._aabb_n = model.aabb  # normalised-frame box
         self.marching = Marching.across_box(self._aabb_n, self.config.sampling.n_steps)  # as in training
+        self._train_cameras = self.training_cameras()  # outside the bounds, what they saw through is FREE
 
     def __repr__(self) -> str:
         lo, hi = self.aabb
@@ -198,7 +200,9 @@ class SemanticField:
         Returns:
             PointQuery: density per world unit; occupancy = 1 - exp(-density * occupancy_delta);
             probs [N, C] over ``class_ids``; label = class id where occupancy ≥ 0.5, FREE where
-            lower, UNKNOWN outside the modelled bounds (where density, occupancy and probs are 0).
+            lower; outside the modelled bounds (where density, occupancy and probs are 0) FREE
+            where a training camera saw through the point on its way into the bounds
+            (:func:`scenelabel.maps.visibility.seen_before_bounds`), else UNKNOWN.
         """
         xyz = checked_array(xyz, "xyz", 3)
         inside = self._inside(xyz)
@@ -210,6 +214,8 @@ class SemanticField:
         all_probs = np.zeros((n, c))
         all_probs[inside] = probs
         label = labels_from_answers(self.class_map.ids_from_channels(all_probs.argmax(-1)), occupancy, inside)
+        if self._train_cameras is not None:
+            label[seen_before_bounds(xyz, self._train_cameras, self.aabb)] = FREE
         return PointQuery(density, occupancy, all_probs, self.class_ids, label)
 
     # ------------------------------------------------------------------ rays
