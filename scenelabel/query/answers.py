@@ -27,7 +27,8 @@ __all__ = [
 
 @dataclass
 class PointQuery:
-    """Answers for N points. ``label``: class id where occupied, FREE (-1), UNKNOWN (-2) outside bounds."""
+    """Answers for N points. ``label``: class id where occupied, FREE (-1), UNKNOWN (-2) outside the
+    bounds where no training camera saw through."""
 
     density: np.ndarray  # [N] σ per world unit
     occupancy: np.ndarray  # [N] 1 - exp(-σ δ), δ = SemanticField.occupancy_delta
