@@ -174,15 +174,7 @@ def visible_from_cameras(
         todo = np.flatnonzero(~seen)  # only points no camera has seen yet
         if todo.size == 0:
             break
-        uv, _, dist = project_points(
-            points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
-            cameras.distortion[i], str(cameras.model[i]),
-        )
-        near = cameras.near[i] if np.isfinite(cameras.near[i]) else 0.0
-        far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
-        width, height = int(cameras.width[i]), int(cameras.height[i])
-        with np.errstate(invalid="ignore"):
-            in_view = inside_image(uv, width, height) & (dist >= near) & (dist <= far)  # [n_todo]
+        uv, dist, in_view = _in_view(points[todo], cameras, i)
         hits = np.flatnonzero(in_view)
         cols = np.floor(uv[hits, 0]).astype(np.int64)
         rows = np.floor(uv[hits, 1]).astype(np.int64)
@@ -190,6 +182,21 @@ def visible_from_cameras(
         tolerance = margin + pixel_margin * dist[hits] / min(cameras.fx[i], cameras.fy[i])
         seen[todo[hits[dist[hits] <= surface + tolerance]]] = True
     return seen
+
+
+def _in_view(points: np.ndarray, cameras: Cameras, i: int, use_near: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera ``i``'s view of points [N, 3]: uv [N, 2] and distance [N] (:func:`project_points`), and
+    [N] bool where rules 1 and 2 hold: inside the image, within ``[near, far]`` (unknown limits: 0,
+    inf; without ``use_near`` only ``far`` limits)."""
+    uv, _, dist = project_points(
+        points, cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
+        cameras.distortion[i], str(cameras.model[i]),
+    )
+    near = cameras.near[i] if use_near and np.isfinite(cameras.near[i]) else 0.0
+    far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
+    with np.errstate(invalid="ignore"):
+        in_view = inside_image(uv, int(cameras.width[i]), int(cameras.height[i])) & (dist >= near) & (dist <= far)
+    return uv, dist, in_view
 
 
 def _visible_compiled(
@@ -249,19 +256,11 @@ def seen_before_bounds(points: Any, cameras: Cameras, aabb: Any) -> np.ndarray:
     for i in range(len(cameras)):
         if todo.size == 0:
             break
-        uv, _, dist = project_points(
-            points[todo], cameras.c2w[i], cameras.fx[i], cameras.fy[i], cameras.cx[i], cameras.cy[i],
-            cameras.distortion[i], str(cameras.model[i]),
-        )
-        far = cameras.far[i] if np.isfinite(cameras.far[i]) else np.inf
+        _, dist, in_view = _in_view(points[todo], cameras, i, use_near=False)
         centre = cameras.c2w[i, :3, 3]
         t_enter, t_exit = ray_box_distances(np.broadcast_to(centre, (todo.size, 3)), points[todo] - centre, lo, hi)
         # directions p - c are not unit: t is in units of d, so the box starts beyond p where t_enter > 1
-        with np.errstate(invalid="ignore"):
-            hit = (
-                inside_image(uv, int(cameras.width[i]), int(cameras.height[i]))
-                & (dist > 0) & (dist <= far) & (t_exit >= t_enter) & (t_enter > 1.0)
-            )
+        hit = in_view & (dist > 0) & (t_exit >= t_enter) & (t_enter > 1.0)
         seen[todo[hit]] = True
         todo = todo[~hit]
     return seen
