@@ -186,6 +186,25 @@ def test_room_layout_of_a_long_hall_seen_at_grazing_angles(tmp_path):
     assert len(layout.walls) == 4 and layout.on_walls >= MIN_ON_WALLS
 
 
+def test_room_layout_of_a_forward_rig_pitched_at_the_floor(tmp_path):
+    """office-5x4-forward: every camera of the rig pitches down, so their mean up is 8.8 degrees
+    off the room's; the refinement from there stops at a tilted up with the floor 0.2 m off. The
+    search from the world axis as well finds up within 0.5 degrees and floor and ceiling within
+    5 cm (the rig's 0.6 m baseline triangulates its far walls' boundaries coarsely)."""
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    spec = suite_spec("office-5x4-forward")
+    scene = load_scene(write_suite_scene(tmp_path / "office", spec))
+    train = [i for i in range(len(scene)) if i % 8]  # the build's training views (train.holdout 8)
+    cameras = scene.cameras[train]
+    mean_up = -cameras.c2w[:, :3, 1].mean(0)
+    assert np.degrees(np.arccos(mean_up[2] / np.linalg.norm(mean_up))) > 5.0
+    layout = room_layout(cameras, [scene.labels[i] for i in train], layout_class_ids(scene.classes))
+    assert np.degrees(np.arccos(min(1.0, float(layout.up[2])))) < 0.5
+    assert abs(layout.floor) < 0.05 and abs(layout.ceiling - spec.size[2]) < 0.05
+    assert layout.on_walls >= MIN_ON_WALLS
+
+
 def test_layout_depth_matches_the_true_depth_of_floor_wall_and_ceiling_pixels(room):
     layout = room_layout(room.cameras, room.labels, IDS)
     errors, covered = [], []
@@ -306,6 +325,24 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     result = build(room, tmp_path / "without", config, progress=False)
     assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]
     assert result.field.config.sampling.grid_decay == GRID_DECAY
+
+
+def test_bounds_from_a_layout_reach_the_cameras(tmp_path):
+    """A forward-facing rig stands before the part of the room it sees, and the layout's depth
+    covers floor, wall and ceiling pixels alone: the box fitted to it must still reach the
+    cameras, since what the other pixels show lies between their camera and the layout."""
+    from scenelabel import build, preset
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    scene = load_scene(write_suite_scene(tmp_path / "office", suite_spec("office-5x4-forward")))
+    config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False, "write_renders": False}})
+    meta = build(scene, tmp_path / "out", config, progress=False).field.meta
+    assert meta["aabb_source"].startswith(LAYOUT_SOURCE) and "reaching the cameras" in meta["aabb_source"]
+    aabb = np.asarray(meta["aabb_world"])
+    centres = np.asarray(meta["train_cameras"]["c2w"])[:, :3, 3]
+    assert np.all(centres >= aabb[0]) and np.all(centres <= aabb[1])
+    # the rig looks along +x from x = 0.6 m; the layout's points begin more than 1.5 m in front of it
+    assert aabb[0, 0] <= centres[:, 0].min() + 1e-9 < 1.0
 
 
 def test_a_layout_build_keeps_its_steps_and_budget_of_a_build_without_depth():

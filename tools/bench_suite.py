@@ -44,6 +44,7 @@ VARIANTS: dict[str, dict] = {
     "voxels": {"preset": "voxels"},
     "fast": {"preset": "fast"},
     "voxels-budget": {"preset": "voxels", "train": {"time_budget": "auto"}},  # the default build's time
+    "fast-box": {"preset": "fast", "sampling": {"warp": "box"}},  # a forward-facing room in uniform cells
     "class-balance": {"train": {"class_balance": True}},
     "dense": {"preset": "dense"},
     "steps-384": {"sampling": {"n_steps": 384}},
@@ -83,6 +84,7 @@ NOTES: dict[str, str] = {
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
+    "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",

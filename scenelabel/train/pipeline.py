@@ -43,7 +43,7 @@ from scenelabel.config import (
     with_preset,
 )
 from scenelabel.data.io import load_scene
-from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, with_layout_depth
+from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
 from scenelabel.data.scene import SILHOUETTE_ALPHA, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
@@ -375,6 +375,15 @@ def silhouette_points(scene: Scene, train_idx: list[int]) -> np.ndarray | None:
     return visual_hull_points(scene.cameras[train_idx], masks, frusta)
 
 
+def _reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """``aabb`` [2, 3] grown to hold the camera ``centres`` [n, 3]. Bounds from a room's layout
+    (:mod:`scenelabel.data.layout_depth`) see only the floor, wall and ceiling pixels; whatever the
+    other pixels show lies between their camera and the layout behind it, so the box must reach
+    the cameras. Inside a room that changes nothing; a forward-facing capture's cameras stand
+    before the part of the room they see, with furniture nearer than the nearest floor in view."""
+    return np.stack([np.minimum(aabb[0], centres.min(0)), np.maximum(aabb[1], centres.max(0))])
+
+
 def prepare_training(
     scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext(), progress: bool = False
 ) -> tuple[Trainer, dict, list[int]]:
@@ -405,6 +414,8 @@ def prepare_training(
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
+    if points is not None and seen_by == LAYOUT_SOURCE:
+        aabb, aabb_source = _reaching_cameras(aabb, scene.cameras[train_idx].centres), aabb_source + ", reaching the cameras"
     if context.distributed:
         aabb = broadcast_array(aabb, device)
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
