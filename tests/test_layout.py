@@ -329,20 +329,26 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
 
 def test_bounds_from_a_layout_reach_the_cameras(tmp_path):
     """A forward-facing rig stands before the part of the room it sees, and the layout's depth
-    covers floor, wall and ceiling pixels alone: the box fitted to it must still reach the
-    cameras, since what the other pixels show lies between their camera and the layout."""
+    covers floor, wall and ceiling pixels alone: a box of uniform cells fitted to it must still
+    reach the cameras, since what the other pixels show lies between their camera and the layout.
+    A forward warp keeps the layout's box (its disparity steps start at the box's nearest depth)."""
     from scenelabel import build, preset
     from scenelabel.data.suite import suite_spec, write_suite_scene
 
     scene = load_scene(write_suite_scene(tmp_path / "office", suite_spec("office-5x4-forward")))
-    config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False, "write_renders": False}})
-    meta = build(scene, tmp_path / "out", config, progress=False).field.meta
-    assert meta["aabb_source"].startswith(LAYOUT_SOURCE) and "reaching the cameras" in meta["aabb_source"]
-    aabb = np.asarray(meta["aabb_world"])
+    boxes = {}
+    for warp in ("box", "forward"):
+        config = preset("quick", {"sampling": {"warp": warp}, "train": {"steps": 2},
+                                  "output": {"write_map": False, "write_renders": False}})
+        meta = build(scene, tmp_path / warp, config, progress=False).field.meta
+        assert meta["aabb_source"].startswith(LAYOUT_SOURCE)
+        assert ("reaching the cameras" in meta["aabb_source"]) == (warp == "box")
+        boxes[warp] = np.asarray(meta["aabb_world"])
     centres = np.asarray(meta["train_cameras"]["c2w"])[:, :3, 3]
-    assert np.all(centres >= aabb[0]) and np.all(centres <= aabb[1])
+    assert np.all(centres >= boxes["box"][0]) and np.all(centres <= boxes["box"][1])
     # the rig looks along +x from x = 0.6 m; the layout's points begin more than 1.5 m in front of it
-    assert aabb[0, 0] <= centres[:, 0].min() + 1e-9 < 1.0
+    assert boxes["box"][0, 0] <= centres[:, 0].min() + 1e-9 < 1.0 < boxes["forward"][0, 0]
+    np.testing.assert_array_equal(boxes["box"][1], boxes["forward"][1])
 
 
 def test_a_layout_build_keeps_its_steps_and_budget_of_a_build_without_depth():

@@ -191,6 +191,19 @@ def test_preset_auto_is_voxels_for_forward_facing_cameras_and_fast_otherwise(sma
     assert resolve_preset(preset(), load_scene(small_toy).cameras)[0] == preset("fast")
     for name in ("fast", "voxels", "quick"):  # a named preset is as given
         assert resolve_preset(preset(name), _forward_cameras()) == (preset(name), None)
+        assert resolve_preset(preset(name), _forward_cameras(), room=True) == (preset(name), None)
+
+
+def test_preset_auto_gives_forward_facing_cameras_before_a_room_fast_in_uniform_cells(small_toy):
+    """A room's layout bounds what a forward-facing rig sees: the fast preset over a box (warp
+    "box"), unless the warp is given; cameras seen from inside are as without a room."""
+    config, why = resolve_preset(preset(), _forward_cameras(), room=True)
+    assert config == preset("fast", {"sampling": {"warp": "box"}})
+    assert why.startswith("preset auto: the training cameras are forward-facing, before a room")
+    given = preset("auto", {"sampling": {"warp": "forward"}, "train": {"seed": 3}})
+    assert resolve_preset(given, _forward_cameras(), room=True)[0] == preset("fast", {"sampling": {"warp": "forward"}, "train": {"seed": 3}})
+    inside = load_scene(small_toy).cameras
+    assert resolve_preset(preset(), inside, room=True) == resolve_preset(preset(), inside)
 
 
 def test_a_default_build_of_a_forward_facing_capture_trains_voxels_and_resumes_so(forward_scene, tmp_path):

@@ -197,7 +197,8 @@ def _cameras(spec: SuiteSpec, c2ws_opengl: np.ndarray) -> Cameras:
 
 
 def test_suite_rooms_are_not_forward_facing_and_the_forward_rooms_are(rooms):
-    """The preset "auto" gives a suite room the fast preset and a forward room the voxels preset: the
+    """The preset "auto" gives a suite room the fast preset and a forward room what forward-facing
+    cameras get (the voxels preset, or the fast one over a box where a room's layout is found): the
     cameras' rule (capture_reference) tells them apart."""
     for spec, _, c2ws in rooms.values():
         assert capture_reference(_cameras(spec, c2ws)) is None and not forward_rig(_cameras(spec, c2ws)), spec.name

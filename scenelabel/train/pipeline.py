@@ -177,11 +177,15 @@ fern), tri-planes and a small network otherwise (docs/suite_capacity.md: on room
 dense grid is far behind in the same time)."""
 
 
-def resolve_preset(config: BuildConfig, cameras: Cameras) -> tuple[BuildConfig, str | None]:
+def resolve_preset(config: BuildConfig, cameras: Cameras, room: bool = False) -> tuple[BuildConfig, str | None]:
     """``config`` with the preset "auto" (:data:`scenelabel.config.AUTO_PRESET`) made FORWARD_PRESET where
-    the training ``cameras`` are forward-facing (:func:`scenelabel.geometry.warps.capture_reference`),
-    else INWARD_PRESET, with the settings given on top of "auto" (:func:`scenelabel.config.with_preset`);
-    any other preset as it is.
+    the training ``cameras`` are forward-facing (:func:`scenelabel.geometry.warps.capture_reference`)
+    and no ``room`` layout bounds what they see, else INWARD_PRESET, with the settings given on top of
+    "auto" (:func:`scenelabel.config.with_preset`); any other preset as it is. Forward-facing cameras
+    before a room (its layout found from the masks, :mod:`scenelabel.data.layout_depth`) get
+    INWARD_PRESET in uniform cells over the box (``sampling.warp`` "box" unless given): the room ends
+    at its walls, so the disparity steps of the forward warp (made for scenes that reach far past
+    the cameras, as LLFF's) only coarsen its far half (docs/suite_forward_layout.md).
 
     Returns:
         (the config, why: said before training and saved with the checkpoint as "preset_choice";
@@ -191,7 +195,14 @@ def resolve_preset(config: BuildConfig, cameras: Cameras) -> tuple[BuildConfig, 
         return config, None
     forward = capture_reference(cameras) is not None
     why = f"preset {AUTO_PRESET}: the training cameras are {'' if forward else 'not '}forward-facing"
-    return with_preset(config, FORWARD_PRESET if forward else INWARD_PRESET), why
+    if not forward:
+        return with_preset(config, INWARD_PRESET), why
+    if not room:
+        return with_preset(config, FORWARD_PRESET), why
+    resolved = with_preset(config, INWARD_PRESET)
+    if resolved.sampling.warp == AUTO:
+        resolved = dataclasses.replace(resolved, sampling=dataclasses.replace(resolved.sampling, warp="box"))
+    return resolved, why + ", before a room whose layout the masks give: uniform cells over its box"
 
 
 def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
@@ -378,10 +389,19 @@ def silhouette_points(scene: Scene, train_idx: list[int]) -> np.ndarray | None:
 def _reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """``aabb`` [2, 3] grown to hold the camera ``centres`` [n, 3]. Bounds from a room's layout
     (:mod:`scenelabel.data.layout_depth`) see only the floor, wall and ceiling pixels; whatever the
-    other pixels show lies between their camera and the layout behind it, so the box must reach
-    the cameras. Inside a room that changes nothing; a forward-facing capture's cameras stand
-    before the part of the room they see, with furniture nearer than the nearest floor in view."""
+    other pixels show lies between their camera and the layout behind it, so a box of uniform cells
+    must reach the cameras. Inside a room that changes nothing; a forward-facing capture's cameras
+    stand before the part of the room they see, with furniture nearer than the nearest floor in
+    view. (A forward warp keeps the layout's box: its disparity steps start at the box's nearest
+    depth, and a box holding the cameras would start them at the cameras, coarsening the far
+    half of the room: docs/suite_forward_layout.md.)"""
     return np.stack([np.minimum(aabb[0], centres.min(0)), np.maximum(aabb[1], centres.max(0))])
+
+
+def _box_warp(config: BuildConfig, cameras: Cameras) -> bool:
+    """Whether the field will have uniform cells over its box (:func:`scenelabel.geometry.warps.choose_warp`)."""
+    warp = config.sampling.warp
+    return warp == "box" or (warp == AUTO and capture_reference(cameras) is None)
 
 
 def prepare_training(
@@ -414,7 +434,7 @@ def prepare_training(
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
-    if points is not None and seen_by == LAYOUT_SOURCE:
+    if points is not None and seen_by == LAYOUT_SOURCE and _box_warp(config, scene.cameras[train_idx]):
         aabb, aabb_source = _reaching_cameras(aabb, scene.cameras[train_idx].centres), aabb_source + ", reaching the cameras"
     if context.distributed:
         aabb = broadcast_array(aabb, device)
@@ -568,15 +588,14 @@ def build(
     elif scene.sensor_depths is not None:
         scene = scaled_to_sensor_depth(scene, progress)
     train_views = choose_views(scene, config.train.holdout)[0]
-    config, preset_choice = resolve_preset(config, scene.cameras[train_views])
+    layout, sensed = None, scene.sensor_depths is not None
     if config.data.layout_depth:  # the room's layout: the depth of a capture without, the holes of one with
-        sensed = scene.sensor_depths is not None
         scene, layout = with_layout_depth(scene, train_views)
-        if layout is not None:
-            if not sensed:  # the layout is the only depth: the settings of resolve_for_layout
-                config = resolve_for_layout(config)
-            if progress:
-                print(f"layout: {scene.info.get(DEPTH_SOURCE_KEY, 'sensor depth')}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
+        if layout is not None and progress:
+            print(f"layout: {scene.info.get(DEPTH_SOURCE_KEY, 'sensor depth')}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
+    config, preset_choice = resolve_preset(config, scene.cameras[train_views], room=layout is not None)
+    if layout is not None and not sensed:  # the layout is the only depth: the settings of resolve_for_layout
+        config = resolve_for_layout(config)
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root) / "scenelabel"
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
