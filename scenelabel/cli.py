@@ -58,7 +58,7 @@ def _add_build_options(p: argparse.ArgumentParser, default_preset: str = AUTO_PR
     p.add_argument("--out", help="output folder (default: SCENE/scenelabel)")
     p.add_argument(
         "--preset", default=default_preset, choices=sorted(PRESETS), help=f"model/training preset (default: {default_preset}"
-        + ("; auto: voxels where the cameras are forward-facing, else fast)" if default_preset == AUTO_PRESET else ")"),
+        + ("; auto: voxels where the cameras are forward-facing and no room layout is found, else fast)" if default_preset == AUTO_PRESET else ")"),
     )
     p.add_argument("--steps", type=int, help="training steps (alone: no time budget)")
     p.add_argument(

@@ -384,8 +384,8 @@ _MLP_FIELD = {"encoding": "positional", "view_encoding": "positional"}
 _MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decaying 10x)
 
 AUTO_PRESET = "auto"
-"""The default preset: ``fast``, or ``voxels`` where the training cameras are forward-facing (LLFF
-captures like fern); the build chooses once it has loaded the scene
+"""The default preset: ``fast``, or ``voxels`` where the training cameras are forward-facing and the
+masks give no room layout (LLFF captures like fern); the build chooses once it has loaded the scene
 (:func:`scenelabel.train.pipeline.resolve_preset`), carrying over the settings given on top of it
 (:func:`with_preset`), and saves the choice."""
 

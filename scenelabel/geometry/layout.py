@@ -449,9 +449,9 @@ def room_layout(cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids
     nearest to it (inputs are often already gravity-aligned), and keeps the layout with more of
     the boundary cuts on its walls. The refinement reaches a few degrees from its start, and a
     capture whose cameras all tilt one way (a forward-facing rig pitched at the floor) starts
-    further from the true up than that: from its cameras' mean up alone, the forward-facing
-    suite rooms' layouts came out tilted by 2.7-5.9 degrees with the floor 0.2-0.5 m off; from
-    the world axis, 0.2-0.5 degrees and a few centimetres, with more cuts on the walls.
+    further from the true up than that (office-5x4-forward, whose cameras' mean up is 8.8 degrees
+    off: from there alone its layout came out tilted 2.7 degrees with the floor 0.2 m off; the
+    world axis's start puts more cuts on the walls, within 0.5 degrees: tests/test_layout.py).
 
     Args:
         cameras: the views' cameras.

@@ -172,9 +172,9 @@ def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: fl
 
 FORWARD_PRESET, INWARD_PRESET = "voxels", "fast"
 """What the preset "auto" becomes (:func:`resolve_preset`): a dense grid without a network where the
-training cameras are forward-facing (docs/suite_forward.md: the forward-facing suite rooms; docs/real.md:
-fern), tri-planes and a small network otherwise (docs/suite_capacity.md: on rooms seen from inside, the
-dense grid is far behind in the same time)."""
+training cameras are forward-facing and no room layout bounds what they see (docs/real.md: fern),
+tri-planes and a small network otherwise (docs/suite_capacity.md: on rooms seen from inside, the
+dense grid is far behind in the same time; docs/suite_forward_layout.md: forward-facing rooms)."""
 
 
 def resolve_preset(config: BuildConfig, cameras: Cameras, room: bool = False) -> tuple[BuildConfig, str | None]:
@@ -394,7 +394,7 @@ def _reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:
     stand before the part of the room they see, with furniture nearer than the nearest floor in
     view. (A forward warp keeps the layout's box: its disparity steps start at the box's nearest
     depth, and a box holding the cameras would start them at the cameras, coarsening the far
-    half of the room: docs/suite_forward_layout.md.)"""
+    half of the room: docs/suite_forward_reach.md.)"""
     return np.stack([np.minimum(aabb[0], centres.min(0)), np.maximum(aabb[1], centres.max(0))])
 
 
