@@ -14,9 +14,11 @@ from scenelabel.data.synthetic.scenes import ROOM_HALF, ROOM_HEIGHT
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.layout import (
+    CLEARLY_MORE_ON_WALLS,
     MIN_ON_WALLS,
     RoomLayout,
     Wall,
+    better_layout,
     boundary_rays,
     depth_from_layout,
     layout_class_ids,
@@ -184,6 +186,20 @@ def test_room_layout_of_a_long_hall_seen_at_grazing_angles(tmp_path):
     assert np.degrees(np.arccos(min(1.0, float(layout.up[2])))) < 0.2
     assert abs(layout.floor) < 0.01 and abs(layout.ceiling - 3.2) < 0.01
     assert len(layout.walls) == 4 and layout.on_walls >= MIN_ON_WALLS
+
+
+def test_the_second_start_replaces_a_usable_layout_only_when_clearly_better():
+    def layout(on_walls):
+        return RoomLayout(up=np.array([0.0, 0.0, 1.0]), floor=0.0, ceiling=None, basis=np.eye(3)[:2], walls=(), on_walls=on_walls)
+
+    usable, unusable = layout(MIN_ON_WALLS + 0.1), layout(MIN_ON_WALLS - 0.1)
+    assert better_layout(usable, layout(usable.on_walls + 0.5 * CLEARLY_MORE_ON_WALLS)) is usable
+    clearly = layout(usable.on_walls + CLEARLY_MORE_ON_WALLS + 1e-9)
+    assert better_layout(usable, clearly) is clearly
+    assert better_layout(usable, layout(usable.on_walls - 0.2)) is usable
+    slightly = layout(unusable.on_walls + 0.01)  # a first layout that would not be used takes any better one
+    assert better_layout(unusable, slightly) is slightly
+    assert better_layout(unusable, layout(unusable.on_walls - 0.01)) is unusable
 
 
 def test_room_layout_of_a_forward_rig_pitched_at_the_floor(tmp_path):

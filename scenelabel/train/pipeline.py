@@ -435,7 +435,9 @@ def prepare_training(
     config, distortion = resolve_distortion(config, thinly_seen)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if points is not None and seen_by == LAYOUT_SOURCE and _box_warp(config, scene.cameras[train_idx]):
-        aabb, aabb_source = _reaching_cameras(aabb, scene.cameras[train_idx].centres), aabb_source + ", reaching the cameras"
+        reached = _reaching_cameras(aabb, scene.cameras[train_idx].centres)
+        if not np.array_equal(reached, aabb):
+            aabb, aabb_source = reached, aabb_source + ", reaching the cameras"
     if context.distributed:
         aabb = broadcast_array(aabb, device)
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
