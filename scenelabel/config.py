@@ -386,7 +386,7 @@ _MLP_TRAIN = {"lr_mlp": 5e-4, "batch_rays": 512}  # NeRF's Adam lr (5e-4, decayi
 AUTO_PRESET = "auto"
 """The default preset: ``fast``, or ``voxels`` where the training cameras are forward-facing and the
 masks give no room layout (LLFF captures like fern); the build chooses once it has loaded the scene
-(:func:`scenelabel.train.pipeline.resolve_preset`), carrying over the settings given on top of it
+(:func:`scenelabel.train.choices.resolve_preset`), carrying over the settings given on top of it
 (:func:`with_preset`), and saves the choice."""
 
 AUTO_CARRIES = {"train": {"time_budget": AUTO}}

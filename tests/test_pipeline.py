@@ -17,7 +17,8 @@ from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
-from scenelabel.train.pipeline import resolve_preset, resume_config, split_views
+from scenelabel.train.choices import resolve_preset
+from scenelabel.train.pipeline import resume_config, split_views
 
 
 def test_every_eighth_view_held_out():
@@ -260,7 +261,7 @@ def test_a_room_without_near_far_or_aabb_is_bounded_by_what_its_cameras_see(tmp_
 def test_auto_distortion_follows_how_well_the_views_see_the_scene():
     """resolve_distortion: a number stays; "auto" is on only where little of the observed geometry
     is thinly seen, and off where nothing was measured (an input with its own bounds)."""
-    from scenelabel.train.pipeline import resolve_distortion
+    from scenelabel.train.choices import resolve_distortion
 
     auto = preset("quick")
     assert auto.train.distortion_weight == AUTO

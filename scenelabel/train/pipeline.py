@@ -30,17 +30,13 @@ from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
 from scenelabel.config import (
     AUTO,
-    AUTO_PRESET,
     BUILD_SECONDS_WITH_DEPTH,
-    DISTORTION_AUTO_WEIGHT,
-    DISTORTION_THIN_MAX,
     BuildConfig,
     config_from_dict,
     config_to_dict,
     preset,
     resolve_for_layout,
     time_budget_with_depth,
-    with_preset,
 )
 from scenelabel.data.io import load_scene
 from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
@@ -48,17 +44,18 @@ from scenelabel.data.scene import SILHOUETTE_ALPHA, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
 from scenelabel.fields.model import FieldNetwork
-from scenelabel.geometry.cameras import Cameras, cameras_to_dict
-from scenelabel.geometry.coverage import THIN_VIEWS, shows_whole, thinly_seen_fraction, visual_hull_points
+from scenelabel.geometry.cameras import cameras_to_dict
+from scenelabel.geometry.coverage import shows_whole, thinly_seen_fraction, visual_hull_points
 from scenelabel.geometry.depth_scale import scale_from_depth
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras
 from scenelabel.geometry.rays import rays_from_cameras
-from scenelabel.geometry.warps import capture_reference, choose_warp
+from scenelabel.geometry.warps import choose_warp
 from scenelabel.metrics import surface_points_from_depth
 from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.render.sampling import CARVE_MARGIN, DensityGrid, free_cells_from_depth, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
+from scenelabel.train.choices import box_warp, reaching_cameras, resolve_distortion, resolve_preset
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
 from scenelabel.train.evaluation import evaluate, expected_finish_seconds
 from scenelabel.train.trainer import Trainer, rays_for_views
@@ -168,41 +165,6 @@ def resume_config(out_dir: str | Path, steps: int | None = None, time_budget: fl
     if time_budget is not None:
         config.train.time_budget = time_budget
     return config
-
-
-FORWARD_PRESET, INWARD_PRESET = "voxels", "fast"
-"""What the preset "auto" becomes (:func:`resolve_preset`): a dense grid without a network where the
-training cameras are forward-facing and no room layout bounds what they see (docs/real.md: fern),
-tri-planes and a small network otherwise (docs/suite_capacity.md: on rooms seen from inside, the
-dense grid is far behind in the same time; docs/suite_forward_layout.md: forward-facing rooms)."""
-
-
-def resolve_preset(config: BuildConfig, cameras: Cameras, room: bool = False) -> tuple[BuildConfig, str | None]:
-    """``config`` with the preset "auto" (:data:`scenelabel.config.AUTO_PRESET`) made FORWARD_PRESET where
-    the training ``cameras`` are forward-facing (:func:`scenelabel.geometry.warps.capture_reference`)
-    and no ``room`` layout bounds what they see, else INWARD_PRESET, with the settings given on top of
-    "auto" (:func:`scenelabel.config.with_preset`); any other preset as it is. Forward-facing cameras
-    before a room (its layout found from the masks, :mod:`scenelabel.data.layout_depth`) get
-    INWARD_PRESET in uniform cells over the box (``sampling.warp`` "box" unless given): the room ends
-    at its walls, so the disparity steps of the forward warp (made for scenes that reach far past
-    the cameras, as LLFF's) only coarsen its far half (docs/suite_forward_layout.md).
-
-    Returns:
-        (the config, why: said before training and saved with the checkpoint as "preset_choice";
-        None for a preset given by name).
-    """
-    if config.preset != AUTO_PRESET:
-        return config, None
-    forward = capture_reference(cameras) is not None
-    why = f"preset {AUTO_PRESET}: the training cameras are {'' if forward else 'not '}forward-facing"
-    if not forward:
-        return with_preset(config, INWARD_PRESET), why
-    if not room:
-        return with_preset(config, FORWARD_PRESET), why
-    resolved = with_preset(config, INWARD_PRESET)
-    if resolved.sampling.warp == AUTO:
-        resolved = dataclasses.replace(resolved, sampling=dataclasses.replace(resolved.sampling, warp="box"))
-    return resolved, why + ", before a room whose layout the masks give: uniform cells over its box"
 
 
 def _class_map(scene: Scene, train_idx: list[int]) -> ClassMap:
@@ -386,24 +348,6 @@ def silhouette_points(scene: Scene, train_idx: list[int]) -> np.ndarray | None:
     return visual_hull_points(scene.cameras[train_idx], masks, frusta)
 
 
-def _reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """``aabb`` [2, 3] grown to hold the camera ``centres`` [n, 3]. Bounds from a room's layout
-    (:mod:`scenelabel.data.layout_depth`) see only the floor, wall and ceiling pixels; whatever the
-    other pixels show lies between their camera and the layout behind it, so a box of uniform cells
-    must reach the cameras. Inside a room that changes nothing; a forward-facing capture's cameras
-    stand before the part of the room they see, with furniture nearer than the nearest floor in
-    view. (A forward warp keeps the layout's box: its disparity steps start at the box's nearest
-    depth, and a box holding the cameras would start them at the cameras, coarsening the far
-    half of the room: docs/suite_forward_reach.md.)"""
-    return np.stack([np.minimum(aabb[0], centres.min(0)), np.maximum(aabb[1], centres.max(0))])
-
-
-def _box_warp(config: BuildConfig, cameras: Cameras) -> bool:
-    """Whether the field will have uniform cells over its box (:func:`scenelabel.geometry.warps.choose_warp`)."""
-    warp = config.sampling.warp
-    return warp == "box" or (warp == AUTO and capture_reference(cameras) is None)
-
-
 def prepare_training(
     scene: Scene, config: BuildConfig, device: torch.device, context: DistContext = DistContext(), progress: bool = False
 ) -> tuple[Trainer, dict, list[int]]:
@@ -434,8 +378,8 @@ def prepare_training(
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
-    if points is not None and seen_by == LAYOUT_SOURCE and _box_warp(config, scene.cameras[train_idx]):
-        reached = _reaching_cameras(aabb, scene.cameras[train_idx].centres)
+    if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, scene.cameras[train_idx]):
+        reached = reaching_cameras(aabb, scene.cameras[train_idx].centres)
         if not np.array_equal(reached, aabb):
             aabb, aabb_source = reached, aabb_source + ", reaching the cameras"
     if context.distributed:
@@ -466,33 +410,6 @@ def prepare_training(
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
     return trainer, static, test_idx
-
-
-def resolve_distortion(config: BuildConfig, thinly_seen: float | None) -> tuple[BuildConfig, dict]:
-    """``config`` with ``train.distortion_weight`` a number, and the record of the choice.
-
-    ``"auto"`` becomes DISTORTION_AUTO_WEIGHT when the build measured the observed geometry and at
-    most DISTORTION_THIN_MAX of it is seen by fewer than THIN_VIEWS training views
-    (``thinly_seen``, :func:`scenelabel.geometry.coverage.thinly_seen_fraction`), else 0: an input that
-    gives its bounds (or sensor depth) has no observed geometry measured. A number stays as given.
-
-    Returns:
-        (the config, {"weight", "thinly_seen" (None: not measured), "why"}).
-    """
-    tc = config.train
-    if tc.distortion_weight != AUTO:
-        weight, why = float(tc.distortion_weight), "as configured"
-    elif thinly_seen is None:
-        weight, why = 0.0, "off: no observed geometry measured (the input gives its bounds or sensor depth)"
-    else:
-        on = thinly_seen <= DISTORTION_THIN_MAX
-        weight = DISTORTION_AUTO_WEIGHT if on else 0.0
-        why = (
-            f"{'on' if on else 'off'}: {thinly_seen:.0%} of the observed geometry is seen by fewer than "
-            f"{THIN_VIEWS} training views ({'at most' if on else 'more than'} {DISTORTION_THIN_MAX:.0%})"
-        )
-    resolved = dataclasses.replace(config, train=dataclasses.replace(tc, distortion_weight=weight))
-    return resolved, {"weight": weight, "thinly_seen": thinly_seen, "why": why}
 
 
 NO_DEPTH_HINT = (

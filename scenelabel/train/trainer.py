@@ -322,7 +322,7 @@ class Trainer:
         # the training rays carry sensor depth the depth terms train on
         self.with_depth = with_depth = self.rays.depth is not None and tc.depth_weight > 0
         self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
-        # "auto" is resolved by the build (pipeline.resolve_distortion); a trainer made without it: off
+        # "auto" is resolved by the build (choices.resolve_distortion); a trainer made without it: off
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
         self.config = resolve_by_depth(config, with_depth)  # grid_decay, steps, budget "auto": by the rays' depth
         self.state = TrainState()
