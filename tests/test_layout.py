@@ -36,6 +36,14 @@ def room(tmp_path_factory):
     return load_scene(write_furnished_room(tmp_path_factory.mktemp("layout") / "room"))
 
 
+@pytest.fixture(scope="module")
+def office_forward(tmp_path_factory):
+    """office-5x4-forward: a suite room photographed by an LLFF-like rig pitched at the floor."""
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    return load_scene(write_suite_scene(tmp_path_factory.mktemp("layout") / "office", suite_spec("office-5x4-forward")))
+
+
 def _rotation_x(degrees: float) -> np.ndarray:
     a = np.radians(degrees)
     return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
@@ -202,15 +210,14 @@ def test_the_second_start_replaces_a_usable_layout_only_when_clearly_better():
     assert better_layout(unusable, layout(unusable.on_walls - 0.01)) is unusable
 
 
-def test_room_layout_of_a_forward_rig_pitched_at_the_floor(tmp_path):
+def test_room_layout_of_a_forward_rig_pitched_at_the_floor(office_forward):
     """office-5x4-forward: every camera of the rig pitches down, so their mean up is 8.8 degrees
     off the room's; the refinement from there stops at a tilted up with the floor 0.2 m off. The
     search from the world axis as well finds up within 0.5 degrees and floor and ceiling within
     5 cm (the rig's 0.6 m baseline triangulates its far walls' boundaries coarsely)."""
-    from scenelabel.data.suite import suite_spec, write_suite_scene
+    from scenelabel.data.suite import suite_spec
 
-    spec = suite_spec("office-5x4-forward")
-    scene = load_scene(write_suite_scene(tmp_path / "office", spec))
+    spec, scene = suite_spec("office-5x4-forward"), office_forward
     train = [i for i in range(len(scene)) if i % 8]  # the build's training views (train.holdout 8)
     cameras = scene.cameras[train]
     mean_up = -cameras.c2w[:, :3, 1].mean(0)
@@ -343,20 +350,18 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     assert result.field.config.sampling.grid_decay == GRID_DECAY
 
 
-def test_bounds_from_a_layout_reach_the_cameras(tmp_path):
+def test_bounds_from_a_layout_reach_the_cameras(office_forward, tmp_path):
     """A forward-facing rig stands before the part of the room it sees, and the layout's depth
     covers floor, wall and ceiling pixels alone: a box of uniform cells fitted to it must still
     reach the cameras, since what the other pixels show lies between their camera and the layout.
     A forward warp keeps the layout's box (its disparity steps start at the box's nearest depth)."""
     from scenelabel import build, preset
-    from scenelabel.data.suite import suite_spec, write_suite_scene
 
-    scene = load_scene(write_suite_scene(tmp_path / "office", suite_spec("office-5x4-forward")))
     boxes = {}
     for warp in ("box", "forward"):
         config = preset("quick", {"sampling": {"warp": warp}, "train": {"steps": 2},
                                   "output": {"write_map": False, "write_renders": False}})
-        meta = build(scene, tmp_path / warp, config, progress=False).field.meta
+        meta = build(office_forward, tmp_path / warp, config, progress=False).field.meta
         assert meta["aabb_source"].startswith(LAYOUT_SOURCE)
         assert ("reaching the cameras" in meta["aabb_source"]) == (warp == "box")
         boxes[warp] = np.asarray(meta["aabb_world"])
