@@ -3,15 +3,20 @@ scenelabel.geometry.layout.room_layout against the exact rooms, and the depth it
 wall and ceiling pixels (what `data.layout_depth` trains on) against the exact depth. Writes
 docs/layout.md (+ .json).
 
-    .venv/bin/python tools/probe_layout.py                      # every suite room, the bench room, tilted and coarse cases
+    .venv/bin/python tools/probe_layout.py                      # every suite room, the layout pool, the bench room, tilted and coarse cases
     .venv/bin/python tools/probe_layout.py --rooms office-5x4 --out /tmp/layout.md
     .venv/bin/python tools/probe_layout.py --rewrite            # the document again from its .json
 
 Each room is written as the suite writes it (tools/bench_suite.py), with its training views only
-(every 8th view held out, as a default build) entering the layout. `tilted`: the same room with
+(every 8th view held out, as a default build) entering the layout. Set: `tuning` and `held out`
+are the suite's rooms (held out: out of every tuning decision); `pool`: forward-facing rooms that
+only this probe writes (`scenelabel.data.suite.LAYOUT_POOL`), on which the layout's choices for
+forward rigs are made. `tilted`: the same room with
 its world turned 3 degrees about x (so "up" is not a world axis and not the cameras' mean up).
 `bench room`: tools/bench.py's furnished room at 160x120 and at 80x60. Up error: the angle between
-the layout's up and the true one; floor, ceiling: the planes' heights against the true ones; walls:
+the layout's up and the true one (in brackets: the vertical of the photos' straight lines alone,
+`scenelabel.geometry.vanishing`; none: too few segments agree); without lines: the layout as it is
+found without the photos (from the cameras' up and the nearest world axis); floor, ceiling: the planes' heights against the true ones; walls:
 how many were found and their largest offset error against the nearest true interior face; on
 walls: the share of boundary cuts on the walls (`RoomLayout.on_walls`; below
 `MIN_ON_WALLS` a build does not use the layout); depth: over the training views' floor, wall and
@@ -52,12 +57,25 @@ def _interior(name: str) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(3), np.asarray(suite_spec(name.split(" ")[0]).size, np.float64)
 
 
+def _set_of(name: str) -> str:
+    """"tuning", "held out" (a suite room out of every tuning decision) or "pool" (tools/probe_layout.py's alone)."""
+    from scenelabel.data.suite import LAYOUT_POOL, suite_spec
+
+    room = name.split(" ")[0]
+    if name.startswith("bench room"):
+        return "tuning"
+    if room in {s.name for s in LAYOUT_POOL}:
+        return "pool"
+    return "tuning" if suite_spec(room).tuning else "held out"
+
+
 def _row(name: str, scene_dir: Path, tilt: float) -> dict:
     import dataclasses
 
     from scenelabel import load_scene
     from scenelabel.data.layout_depth import MIN_LAYOUT_SHARE
     from scenelabel.geometry.layout import MIN_ON_WALLS, depth_from_layout, layout_class_ids, room_layout
+    from scenelabel.geometry.vanishing import vertical_from_images
     from scenelabel.train.pipeline import split_views
 
     scene = load_scene(scene_dir)
@@ -67,9 +85,13 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
     cams = dataclasses.replace(scene.cameras, c2w=c2w)
     train, _ = split_views(len(scene), 8)
     ids = layout_class_ids(scene.classes)
+    labels, images = [scene.labels[i] for i in train], [scene.images[i] for i in train]
     t0 = time.perf_counter()
-    layout = room_layout(cams[train], [scene.labels[i] for i in train], ids)
+    layout = room_layout(cams[train], labels, ids, images)
     seconds = time.perf_counter() - t0
+    without_lines = room_layout(cams[train], labels, ids)
+    start = -cams[train].c2w[:, :3, 1].mean(axis=0)
+    vertical = vertical_from_images(cams[train], images, start / np.linalg.norm(start))
     lo, hi = _interior(name)
     up = rotation @ np.array([0.0, 0.0, 1.0])
     wall_errors = []
@@ -88,12 +110,20 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
         planar_total += int(planar.sum())
     errors = np.concatenate(errors)
     pixels = sum(int(np.prod(scene.labels[i].shape)) for i in train)
+    def degrees_off(direction: np.ndarray | None) -> float | None:
+        return None if direction is None else float(np.degrees(np.arccos(min(1.0, float(direction @ up)))))
+
     return {
         "room": name,
+        "set": _set_of(name),
         "views": len(train),
         "resolution": f"{scene.images[0].shape[1]}x{scene.images[0].shape[0]}",
         "seconds": seconds,
-        "up_error_degrees": float(np.degrees(np.arccos(min(1.0, float(layout.up @ up))))),
+        "up_error_degrees": degrees_off(layout.up),
+        "lines_up_error_degrees": degrees_off(vertical),
+        "without_lines_up_error_degrees": degrees_off(without_lines.up),
+        "without_lines_floor_error": float(without_lines.floor - lo[2]),
+        "without_lines_on_walls": without_lines.on_walls,
         "floor_error": float(layout.floor - lo[2]),
         "ceiling_error": None if layout.ceiling is None else float(layout.ceiling - hi[2]),
         "walls": len(layout.walls),
@@ -137,15 +167,17 @@ def _document(rows: list[dict], command: str, code: str) -> str:
         "",
         *__doc__.split("\n\n")[2].split("\n"),
         "",
-        "| room | training views | search s | up error deg | floor / ceiling error cm | walls (largest error cm) | on walls | used | depth error median / p90 % | within 1 % | covered | floor, wall, ceiling pixels |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| room | set | training views | search s | up error deg (lines' vertical) | floor / ceiling error cm | walls (largest error cm) | on walls | used | without lines: up error deg, floor cm, on walls | depth error median / p90 % | within 1 % | covered | floor, wall, ceiling pixels |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ceiling = "-" if r["ceiling_error"] is None else f"{100 * r['ceiling_error']:+.1f}"
         walls = f"{r['walls']} ({100 * r['wall_error_max']:.1f})" if r["wall_error_max"] is not None else "0"
+        lines_up = "none" if r["lines_up_error_degrees"] is None else f"{r['lines_up_error_degrees']:.3f}"
         lines.append(
-            f"| {r['room']} | {r['views']} @ {r['resolution']} | {r['seconds']:.1f} | {r['up_error_degrees']:.3f} | "
+            f"| {r['room']} | {r['set']} | {r['views']} @ {r['resolution']} | {r['seconds']:.1f} | {r['up_error_degrees']:.3f} ({lines_up}) | "
             f"{100 * r['floor_error']:+.1f} / {ceiling} | {walls} | {r['on_walls']:.2f} | {'yes' if r['used'] else 'no'} | "
+            f"{r['without_lines_up_error_degrees']:.3f}, {100 * r['without_lines_floor_error']:+.1f}, {r['without_lines_on_walls']:.2f} | "
             f"{100 * r['depth_rel_median']:.2f} / {100 * r['depth_rel_p90']:.2f} | {100 * r['within_1pct']:.1f} % | "
             f"{100 * r['coverage']:.0f} % | {100 * r['planar_share']:.0f} % |"
         )
@@ -153,10 +185,10 @@ def _document(rows: list[dict], command: str, code: str) -> str:
 
 
 def main() -> None:
-    from scenelabel.data.suite import SUITE
+    from scenelabel.data.suite import FORWARD_SUITE, LAYOUT_POOL, SUITE
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--rooms", nargs="+", default=[s.name for s in SUITE])
+    parser.add_argument("--rooms", nargs="+", default=[s.name for s in SUITE + FORWARD_SUITE + LAYOUT_POOL])
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "layout.md")
     parser.add_argument("--rewrite", action="store_true", help="rewrite the document from OUT's .json")
     args = parser.parse_args()

@@ -65,7 +65,7 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     if "floor" not in ids or "wall" not in ids:
         return scene, None
     cameras = scene.cameras[train]
-    layout = room_layout(cameras, [scene.labels[i] for i in train], ids)
+    layout = room_layout(cameras, [scene.labels[i] for i in train], ids, [scene.images[i] for i in train])
     if layout is None or layout.on_walls < MIN_ON_WALLS:
         return scene, None
     sensor = scene.sensor_depths

@@ -37,6 +37,7 @@ __all__ = [
     "CAMERA_CLEARANCE",
     "FOV_X_DEG",
     "FORWARD_SUITE",
+    "LAYOUT_POOL",
     "RIG_HALF_WIDTH",
     "RIG_HEIGHTS",
     "SUITE",
@@ -125,6 +126,21 @@ FORWARD_SUITE: tuple[SuiteSpec, ...] = (
     SuiteSpec("gallery-8x5-forward", 34, (8.0, 5.0, 3.2), 8, "mixed", "forward", 30, 160, 120, False),
 )
 
+# Forward-facing rooms that only the room layout's probe writes (tools/probe_layout.py, docs/layout.md):
+# no build, no suite run. The suite's held-out forward rooms stay out of the layout's decisions; these
+# are what those decisions are checked on.
+LAYOUT_POOL: tuple[SuiteSpec, ...] = tuple(
+    SuiteSpec(f"{theme}-{size[0]:g}x{size[1]:g}-forward-{seed}", seed, size, furniture, texture, "forward", 24 + 2 * (seed % 4), 160, 120)
+    for seed, (theme, size, furniture, texture) in enumerate(
+        (("studio", (3.0, 3.0, 2.4), 4, "mixed"), ("kitchen", (4.0, 3.2, 2.6), 5, "busy"),
+         ("den", (5.0, 5.0, 2.6), 6, "plain"), ("library", (7.0, 4.0, 3.0), 9, "busy"),
+         ("hall", (10.0, 6.0, 3.2), 10, "plain"), ("office", (5.0, 4.0, 2.7), 7, "mixed"),
+         ("living", (6.0, 5.0, 2.7), 8, "plain"), ("bedroom", (4.0, 4.0, 2.5), 5, "busy"),
+         ("gallery", (8.0, 5.0, 3.2), 8, "busy"), ("studio", (3.5, 3.0, 2.5), 4, "plain")),
+        start=51,
+    )
+)
+
 #: furniture kinds a room of a theme (name before "-") gets first; the rest are drawn at random
 THEMES: dict[str, tuple[str, ...]] = {
     "studio": ("table", "chair", "lamp", "picture", "cabinet", "shelf"),
@@ -142,9 +158,9 @@ RANDOM_KINDS = ("table", "chair", "cabinet", "shelf", "lamp", "picture")
 
 
 def suite_spec(name: str) -> SuiteSpec:
-    """The :data:`SUITE` or :data:`FORWARD_SUITE` entry called ``name`` (InputError naming the known
-    names otherwise)."""
-    rooms = SUITE + FORWARD_SUITE
+    """The :data:`SUITE`, :data:`FORWARD_SUITE` or :data:`LAYOUT_POOL` entry called ``name``
+    (InputError naming the known names otherwise)."""
+    rooms = SUITE + FORWARD_SUITE + LAYOUT_POOL
     for spec in rooms:
         if spec.name == name:
             return spec

@@ -29,8 +29,12 @@ The steps (numpy only):
    direction (the horizontal rotation whose two axes bunch the cuts most); up, the floor and that
    direction refined along the walls; the ceiling; the walls (the peaks of the cuts' coordinates
    along each axis that stand out of the even spread of the cuts on the walls across, with the
-   stretch their cuts cover). Where few cuts lie on the walls found (``RoomLayout.on_walls``),
-   once more from the world axis nearest to the cameras' up.
+   stretch their cuts cover). Once more from the world axis nearest to the cameras' up; and, where
+   the photos' straight lines give a vertical (:mod:`scenelabel.geometry.vanishing`), once more
+   from it, refined within a degree or so, after ruling out the layouts more than
+   :data:`MAX_OFF_VERTICAL` from it. The first layout stays unless another puts clearly more of
+   the cuts on its walls (``RoomLayout.on_walls``, :func:`better_layout`). A plane is looked for
+   only where boundaries of its kind show in :data:`MIN_BOUNDARY_VIEWS` views.
 4. :func:`depth_from_layout`: per pixel labelled floor, ceiling or wall, the distance along its ray
    to that plane (for a wall: the nearest wall it meets within a wall's extent, between floor and
    ceiling); NaN elsewhere.
@@ -48,6 +52,7 @@ import numpy as np
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.geometry.vanishing import vertical_from_images
 
 __all__ = [
     "LAYOUT_CLASSES",
@@ -56,6 +61,8 @@ __all__ = [
     "MAX_SEARCH_RAYS",
     "MIN_ON_WALLS",
     "CLEARLY_MORE_ON_WALLS",
+    "MIN_BOUNDARY_VIEWS",
+    "MAX_OFF_VERTICAL",
     "MIN_WALL_SUPPORT",
     "WALL_BAND",
     "SEARCH_SPAN",
@@ -106,10 +113,25 @@ SEARCH_SPAN = 4.0
 WALL_BAND = 0.03
 """World units: boundary cuts this close to a wall's line belong to it."""
 
+MIN_BOUNDARY_VIEWS = 3
+"""A plane is looked for only where its boundary rays come from at least this many views (each
+with :data:`_VIEW_RAYS` or more): the rays of one view meet every plane in the same line, seen
+from the camera, and agree at any height (a forward rig that glimpsed the ceiling in one photo put
+it 0.9 m low, docs/layout.md)."""
+
+MAX_OFF_VERTICAL = 1.0
+"""Degrees: a layout whose up is further than this from the vertical of the photos' lines
+(:func:`scenelabel.geometry.vanishing.vertical_from_images`) is not taken. That vertical came
+within 0.62 degrees of the true one on every room of docs/layout.md; the layouts it rules out
+were tilted by 1.6 to 5 degrees."""
+
 # (half range, step) in degrees of the passes refining up: in the plane from the cameras' mean up,
-# then along the walls
+# then along the walls; from the vertical of the photos' lines (vanishing.vertical_from_images)
+# along the walls alone, and half as far
 _TILTS_PLANE = ((4.0, 1.0), (1.0, 0.25))
 _TILTS_WALLS = ((1.0, 0.25), (0.25, 0.05))
+_TILTS_FROM_LINES = ((0.5, 0.25), (0.25, 0.05))
+_VIEW_RAYS = 10  # boundary rays a view must hold to count towards MIN_BOUNDARY_VIEWS
 _EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
 _FAR = 1e3  # world units: boundary rays meeting a plane farther than this tell nothing about it
 _HEIGHT_REACH = 0.3  # world units about the starting up's heights a tilted up's are searched within
@@ -315,7 +337,7 @@ def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
 
 def _refined_up(
     floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray] | None,
-    up: np.ndarray, walls: np.ndarray | None,
+    up: np.ndarray, walls: np.ndarray | None, passes: tuple[tuple[float, float], ...], tilt: bool = True,
 ) -> tuple[np.ndarray, float, np.ndarray | None]:
     """``up`` tilted to where the boundary rays agree best: one tilt at a time, in passes of
     (half range, step) degrees. Each candidate's floor (and ceiling) height is its own best
@@ -323,9 +345,10 @@ def _refined_up(
     starting ``up``, then near the best so far); the candidate's score is how well the floor's
     and the ceiling's cuts agree together (:func:`_joint_agreement`: walls are vertical, so only
     the true up puts a wall's base and top on one line), or the floor's alone without ceiling
-    rays. Without ``walls``, agreement in the plane (:data:`_TILTS_PLANE`); with ``walls`` (a
-    direction along them), along the walls, the walls' direction turned about up as a third angle
-    (:data:`_TILTS_WALLS`). Returns (up, floor height, walls)."""
+    rays. Without ``walls``, agreement in the plane; with ``walls`` (a direction along them),
+    along the walls, the walls' direction turned about up as a third angle. ``passes``: (half
+    range, step) degrees each (none: up as given); ``tilt`` False turns the walls alone.
+    Returns (up, floor height, walls)."""
     angles = np.zeros(3)  # tilts about two axes normal to up; the walls' turn about up
 
     def placed(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -345,8 +368,8 @@ def _refined_up(
         ceiling = plane_offset(*ceiling_rays, tilted, False, heights[1], along, reach)[0]
         return _joint_agreement(floor_rays, ceiling_rays, tilted, (floor, ceiling), along), [floor, ceiling]
 
-    for half, step in _TILTS_PLANE if walls is None else _TILTS_WALLS:
-        for axis in (0, 1) * 2 if walls is None else (0, 1, 2) * 2:
+    for half, step in passes:
+        for axis in ((0, 1) if walls is None else (0, 1, 2) if tilt else (2,)) * 2:
             candidates = []
             for x in np.arange(-half, half + 1e-9, step):
                 c = angles.copy()
@@ -453,42 +476,66 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     return rot, tuple(walls)
 
 
-def room_layout(cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids: Mapping[str, int]) -> RoomLayout | None:
+def room_layout(
+    cameras: Cameras, labels: Sequence[np.ndarray | None], class_ids: Mapping[str, int],
+    images: Sequence[np.ndarray] | None = None,
+) -> RoomLayout | None:
     """The layout of a room from its views' masks (see the module docstring).
 
-    The search for up starts from the cameras' mean up direction and again from the world axis
-    nearest to it (inputs are often already gravity-aligned); :func:`better_layout` picks one. The
-    refinement reaches a few degrees from its start, and a capture whose cameras all tilt one way
-    (a forward-facing rig pitched at the floor) starts further from the true up than that
-    (office-5x4-forward, whose cameras' mean up is 8.8 degrees off: from there alone its layout
-    came out tilted 2.7 degrees with the floor 0.2 m off; from the world axis within 0.5 degrees,
-    with clearly more cuts on the walls: tests/test_layout.py).
+    Up comes from the photos' straight lines where they give it
+    (:func:`scenelabel.geometry.vanishing.vertical_from_images`), refined along the walls within
+    about a degree (the cuts' agreement leans towards planes tilted at the cameras, and a forward
+    rig's boundaries do not hold it there: docs/layout.md). Without images, or where too few
+    segments agree on a vertical, the search for up starts from the cameras' mean up direction and
+    again from the world axis nearest to it (inputs are often already gravity-aligned);
+    :func:`better_layout` picks one. That refinement reaches a few degrees from its start, and a
+    capture whose cameras all tilt one way (a forward-facing rig pitched at the floor) starts
+    further from the true up than that (office-5x4-forward, whose cameras' mean up is 8.8 degrees
+    off: from there alone its layout came out tilted 2.7 degrees with the floor 0.2 m off).
 
     Args:
         cameras: the views' cameras.
         labels: their label images ([H, W] class ids; None: unlabelled).
         class_ids: :func:`layout_class_ids` of the scene's classes.
+        images: their photos ([H, W, 3] float in [0, 1]), or None.
     Returns:
         the layout, or None where the masks show no floor-wall boundary (no floor, wall or none
-        adjacent). The ceiling is None without wall-ceiling boundaries.
+        adjacent) in :data:`MIN_BOUNDARY_VIEWS` views. The ceiling is None without wall-ceiling
+        boundaries in that many views.
     """
     if "floor" not in class_ids or "wall" not in class_ids:
         return None
     floor_rays = _subsample(*boundary_rays(cameras, labels, class_ids["floor"], class_ids["wall"]))
-    if len(floor_rays[0]) == 0:
+    if _views_holding(floor_rays[0]) < MIN_BOUNDARY_VIEWS:
         return None
     ceiling_rays = None
     if "ceiling" in class_ids:
         ceiling_rays = _subsample(*boundary_rays(cameras, labels, class_ids["wall"], class_ids["ceiling"]))
+        if _views_holding(ceiling_rays[0]) < MIN_BOUNDARY_VIEWS:
+            ceiling_rays = None
     up = -cameras.c2w[:, :3, 1].mean(axis=0)  # the cameras' mean up (OpenCV: y points down)
     up /= np.linalg.norm(up)
     centre = cameras.c2w[:, :3, 3].mean(axis=0)
-    layout = _layout_from(floor_rays, ceiling_rays, up, centre)
     axis = np.zeros(3)
     axis[int(np.argmax(np.abs(up)))] = np.sign(up[int(np.argmax(np.abs(up)))])
-    if not np.allclose(axis, up):
-        layout = better_layout(layout, _layout_from(floor_rays, ceiling_rays, axis, centre))
+    layouts = [_layout_from(floor_rays, ceiling_rays, start, centre) for start in ([up] if np.allclose(axis, up) else [up, axis])]
+    vertical = None if images is None else vertical_from_images(cameras, images, up)
+    if vertical is not None:
+        layouts = [layout for layout in layouts if layout.up @ vertical >= np.cos(np.radians(MAX_OFF_VERTICAL))]
+        # the floor's cuts alone lean towards tilted planes: without a ceiling the lines' up stays
+        layouts.append(_layout_from(floor_rays, ceiling_rays, vertical, centre, ((), _TILTS_FROM_LINES), ceiling_rays is not None))
+    layout = layouts[0]
+    for other in layouts[1:]:
+        layout = better_layout(layout, other)
     return layout
+
+
+def _views_holding(origins: np.ndarray) -> int:
+    """How many distinct ray origins (views) hold at least :data:`_VIEW_RAYS` of ``origins`` [m, 3]."""
+    if len(origins) == 0:
+        return 0
+    counts = np.unique(origins, axis=0, return_counts=True)[1]
+    return int((counts >= _VIEW_RAYS).sum())
 
 
 def better_layout(first: RoomLayout, other: RoomLayout) -> RoomLayout:
@@ -503,10 +550,12 @@ def better_layout(first: RoomLayout, other: RoomLayout) -> RoomLayout:
 def _layout_from(
     floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray] | None,
     up: np.ndarray, centre: np.ndarray,
+    passes: tuple[tuple[tuple[float, float], ...], ...] = (_TILTS_PLANE, _TILTS_WALLS), tilt: bool = True,
 ) -> RoomLayout:
-    """:func:`room_layout` from one starting ``up``. Heights and wall offsets are searched about the
-    cameras' centroid ``centre`` (tilting up then barely moves a plane's height) and given back
-    about the world's origin."""
+    """:func:`room_layout` from one starting ``up``, refined in the plane and then along the walls
+    by ``passes`` (:func:`_refined_up`'s, one tuple each; ``tilt`` False: up stays, the walls turn). Heights and wall offsets are searched
+    about the cameras' centroid ``centre`` (tilting up then barely moves a plane's height) and
+    given back about the world's origin."""
     floor_rays = (floor_rays[0] - centre, floor_rays[1])
     # up and the floor where the floor's boundary cuts agree in the plane; the walls' direction from
     # those cuts; then up, the floor and that direction where the cuts agree along the walls
@@ -514,10 +563,10 @@ def _layout_from(
     ceiling_search = None
     if ceiling_rays is not None and len(ceiling_rays[0]):
         ceiling_search = _subsample(ceiling_rays[0] - centre, ceiling_rays[1], MAX_SEARCH_RAYS)
-    up, floor, _ = _refined_up(search, ceiling_search, up, None)
+    up, floor, _ = _refined_up(search, ceiling_search, up, None, passes[0])
     plane = _horizontal(up, _world_axis_across(up))
     along = _walls(_cuts(*floor_rays, up, floor) @ plane.T)[0][0] @ plane
-    up, floor, along = _refined_up(search, ceiling_search, up, along)
+    up, floor, along = _refined_up(search, ceiling_search, up, along, passes[1], tilt)
     floor = plane_offset(*floor_rays, up, True, floor, along)[0]
     points = [_cuts(*floor_rays, up, floor)]
     ceiling = None
