@@ -116,8 +116,8 @@ WALL_BAND = 0.03
 MIN_BOUNDARY_VIEWS = 3
 """A plane is looked for only where its boundary rays come from at least this many views (each
 with :data:`_VIEW_RAYS` or more): the rays of one view meet every plane in the same line, seen
-from the camera, and agree at any height (a forward rig that glimpsed the ceiling in one photo put
-it 0.9 m low, docs/layout.md)."""
+from the camera, and agree at any height (studio-3x3-forward-51 shows its ceiling in one training
+photo: its layout has none, docs/layout.md)."""
 
 MAX_OFF_VERTICAL = 1.0
 """Degrees: a layout whose up is further than this from the vertical of the photos' lines
@@ -482,16 +482,17 @@ def room_layout(
 ) -> RoomLayout | None:
     """The layout of a room from its views' masks (see the module docstring).
 
-    Up comes from the photos' straight lines where they give it
-    (:func:`scenelabel.geometry.vanishing.vertical_from_images`), refined along the walls within
-    about a degree (the cuts' agreement leans towards planes tilted at the cameras, and a forward
-    rig's boundaries do not hold it there: docs/layout.md). Without images, or where too few
-    segments agree on a vertical, the search for up starts from the cameras' mean up direction and
-    again from the world axis nearest to it (inputs are often already gravity-aligned);
-    :func:`better_layout` picks one. That refinement reaches a few degrees from its start, and a
-    capture whose cameras all tilt one way (a forward-facing rig pitched at the floor) starts
-    further from the true up than that (office-5x4-forward, whose cameras' mean up is 8.8 degrees
-    off: from there alone its layout came out tilted 2.7 degrees with the floor 0.2 m off).
+    The search for up starts from the cameras' mean up direction and again from the world axis
+    nearest to it (inputs are often already gravity-aligned). That refinement reaches a few
+    degrees from its start, and a capture whose cameras all tilt one way (a forward-facing rig
+    pitched at the floor) starts further from the true up than that (office-5x4-forward, whose
+    cameras' mean up is 8.8 degrees off: from there alone its layout came out tilted 2.7 degrees
+    with the floor 0.2 m off). Where the photos' straight lines give a vertical
+    (:func:`scenelabel.geometry.vanishing.vertical_from_images`), the layouts further than
+    :data:`MAX_OFF_VERTICAL` from it are ruled out and a third search starts from it, refined
+    along the walls within about a degree: the cuts' agreement leans towards planes tilted at the
+    cameras, and a forward rig's one or two walls do not hold it (docs/layout.md).
+    :func:`better_layout` picks among the layouts left, in that order.
 
     Args:
         cameras: the views' cameras.
