@@ -10,10 +10,12 @@ from scenelabel.data.synthetic.views import look_at
 from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.lens import project_points
 from scenelabel.geometry.vanishing import (
+    MAX_SIDE,
     MIN_VERTICAL_SEGMENTS,
     MIN_VERTICAL_VIEWS,
     line_segments,
     segment_normals,
+    segments_at_most,
     vertical_from_images,
     vertical_from_normals,
 )
@@ -74,6 +76,19 @@ def test_line_segments_finds_an_edge_at_its_pixel_coordinates():
     assert len(near) == 1
     assert np.abs(np.sort(near[0, [1, 3]]) - [30.0, 90.0]).max() < 2.0
     assert line_segments(np.full((H, W), 0.5)).shape == (0, 4)  # flat: none
+
+
+def test_a_large_photos_segments_are_found_shrunk_and_given_in_its_own_pixels():
+    """The same square at 1280x960 (its left edge at u = 320): found in the photo shrunk to
+    MAX_SIDE, given back within half a pixel of the edge at full size, about as long."""
+    image = np.full((960, 1280, 3), 0.9)
+    image[240:720, 320:800] = 0.1
+    segments = segments_at_most(image)
+    assert MAX_SIDE < 1280
+    left = segments[(np.abs(segments[:, 0] - segments[:, 2]) < 2.0) & (np.abs(segments[:, 0] - 320.0) < 0.5)]
+    assert len(left) == 1 and np.abs(np.sort(left[0, [1, 3]]) - [240.0, 720.0]).max() < 6.0
+    corner = image[200:440, 280:600]  # 320 pixels wide, a corner of the square: as it is
+    assert len(line_segments(corner)) >= 2 and np.array_equal(segments_at_most(corner), line_segments(corner))
 
 
 def test_segment_normals_match_a_naive_cross_product():
