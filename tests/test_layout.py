@@ -9,7 +9,14 @@ import pytest
 from scipy.ndimage import binary_erosion
 
 from scenelabel import load_scene, write_furnished_room, write_toy_scene
-from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, FILL_MARGIN, LAYOUT_KEY, LAYOUT_SOURCE, with_layout_depth
+from scenelabel.data.layout_depth import (
+    DEPTH_SOURCE_KEY,
+    FILL_MARGIN,
+    LAYOUT_KEY,
+    LAYOUT_SOURCE,
+    depth_from_layout,
+    with_layout_depth,
+)
 from scenelabel.data.synthetic.scenes import ROOM_HALF, ROOM_HEIGHT
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -17,12 +24,12 @@ from scenelabel.geometry.layout import (
     CLEARLY_MORE_ON_WALLS,
     MAX_OFF_VERTICAL,
     MIN_BOUNDARY_VIEWS,
+    MIN_NEAR_WALLS,
     MIN_ON_WALLS,
     RoomLayout,
     Wall,
     better_layout,
     boundary_rays,
-    depth_from_layout,
     layout_class_ids,
     plane_offset,
     room_layout,
@@ -264,6 +271,38 @@ def test_a_plane_seen_in_too_few_views_is_not_looked_for(room):
     assert room_layout(room.cameras, only_in(MIN_BOUNDARY_VIEWS - 1, FLOOR, WALL), IDS) is None
 
 
+def test_pixel_reach_matches_a_ray_turned_by_a_pixel():
+    """_pixel_reach against the cut of the same ray turned by a small angle towards the plane, in
+    float64: a far wall seen at a grazing angle moves most; a ray along the wall not at all."""
+    from scenelabel.geometry.layout import _pixel_reach
+
+    up, normal, pixel = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), 1e-5
+    origin = np.array([0.0, 0.0, 1.4])
+    for target in ([6.0, 0.0, 0.0], [3.0, 1.0, 0.0], [1.0, 0.5, 0.0], [0.0, 4.0, 0.0]):
+        d = np.asarray(target) - origin
+        d /= np.linalg.norm(d)
+        t = -origin[2] / d[2]
+        side = np.cross(d, up)
+        turned = d + pixel * np.cross(side / np.linalg.norm(side), d)  # within the vertical plane holding d
+        turned /= np.linalg.norm(turned)
+        moved = origin + turned * (-origin[2] / turned[2]) - (origin + d * t)
+        reach = _pixel_reach(d[None], np.array([t]), up, normal, pixel)[0]
+        assert abs(reach - abs(moved @ normal)) < 1e-3 * max(reach, 1e-9) + 1e-12
+    head_on = _pixel_reach(np.array([[0.97, 0.0, -0.24]]), np.array([6.0]), up, normal, 1 / 140)[0]
+    assert head_on > 0.15  # a pixel 6 m away at a grazing angle: tens of centimetres
+
+
+def test_a_low_resolution_rooms_layout_is_used(tmp_path):
+    """The furnished room at 80x60: its layout is as good as at 160x120 but only 0.45 of its cuts
+    lie within WALL_BAND of a wall (a pixel spans twice as much); within a pixel's reach of a wall,
+    nearly all do, and the build uses it."""
+    low = load_scene(write_furnished_room(tmp_path / "low", width=80, height=60))
+    layout = room_layout(low.cameras, low.labels, IDS, low.images)
+    assert layout.on_walls < MIN_ON_WALLS <= MIN_NEAR_WALLS <= 0.95 < layout.near_walls
+    assert abs(layout.floor) < 0.01 and abs(layout.ceiling - ROOM_HEIGHT) < 0.01
+    assert with_layout_depth(low, list(range(len(low))))[1] is not None
+
+
 def test_layout_depth_matches_the_true_depth_of_floor_wall_and_ceiling_pixels(room):
     layout = room_layout(room.cameras, room.labels, IDS)
     errors, covered = [], []
@@ -364,7 +403,7 @@ def test_a_layout_that_leaves_the_boundaries_off_its_walls_is_not_used(room):
     strewn = dataclasses.replace(room, labels=[rng.choice([FLOOR, WALL], size=lab.shape) for lab in room.labels])
     train = list(range(8))
     layout = room_layout(strewn.cameras[train], [strewn.labels[i] for i in train], IDS)
-    assert layout is not None and layout.on_walls < MIN_ON_WALLS
+    assert layout is not None and layout.near_walls < MIN_NEAR_WALLS
     scene, used = with_layout_depth(strewn, train)
     assert used is None and scene is strewn
 

@@ -18,8 +18,9 @@ the layout's up and the true one (in brackets: the vertical of the photos' strai
 `scenelabel.geometry.vanishing`; none: too few segments agree); without lines: the layout as it is
 found without the photos (from the cameras' up and the nearest world axis); floor, ceiling: the planes' heights against the true ones; walls:
 how many were found and their largest offset error against the nearest true interior face; on
-walls: the share of boundary cuts on the walls (`RoomLayout.on_walls`; below
-`MIN_ON_WALLS` a build does not use the layout); depth: over the training views' floor, wall and
+walls: the share of boundary cuts within 3 cm of the walls (`RoomLayout.on_walls`), and within a
+pixel's reach of them (`RoomLayout.near_walls`; below `MIN_NEAR_WALLS` a build does not use the
+layout); depth: over the training views' floor, wall and
 ceiling pixels, |layout depth - true| / true, and the share of those pixels it covers.
 """
 
@@ -73,8 +74,8 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
     import dataclasses
 
     from scenelabel import load_scene
-    from scenelabel.data.layout_depth import MIN_LAYOUT_SHARE
-    from scenelabel.geometry.layout import MIN_ON_WALLS, depth_from_layout, layout_class_ids, room_layout
+    from scenelabel.data.layout_depth import MIN_LAYOUT_SHARE, depth_from_layout
+    from scenelabel.geometry.layout import MIN_NEAR_WALLS, layout_class_ids, room_layout
     from scenelabel.geometry.vanishing import vertical_from_images
     from scenelabel.train.pipeline import split_views
 
@@ -124,12 +125,14 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
         "without_lines_up_error_degrees": degrees_off(without_lines.up),
         "without_lines_floor_error": float(without_lines.floor - lo[2]),
         "without_lines_on_walls": without_lines.on_walls,
+        "without_lines_near_walls": without_lines.near_walls,
         "floor_error": float(layout.floor - lo[2]),
         "ceiling_error": None if layout.ceiling is None else float(layout.ceiling - hi[2]),
         "walls": len(layout.walls),
         "wall_error_max": float(max(wall_errors)) if wall_errors else None,
         "on_walls": layout.on_walls,
-        "used": bool(layout.on_walls >= MIN_ON_WALLS and covered >= MIN_LAYOUT_SHARE * pixels),
+        "near_walls": layout.near_walls,
+        "used": bool(layout.near_walls >= MIN_NEAR_WALLS and covered >= MIN_LAYOUT_SHARE * pixels),
         "depth_rel_median": float(np.median(errors)),
         "depth_rel_p90": float(np.percentile(errors, 90)),
         "within_1pct": float(np.mean(errors < 0.01)),
@@ -167,7 +170,7 @@ def _document(rows: list[dict], command: str, code: str) -> str:
         "",
         *__doc__.split("\n\n")[2].split("\n"),
         "",
-        "| room | set | training views | search s | up error deg (lines' vertical) | floor / ceiling error cm | walls (largest error cm) | on walls | used | without lines: up error deg, floor cm, on walls | depth error median / p90 % | within 1 % | covered | floor, wall, ceiling pixels |",
+        "| room | set | training views | search s | up error deg (lines' vertical) | floor / ceiling error cm | walls (largest error cm) | on / near walls | used | without lines: up error deg, floor cm, on / near walls | depth error median / p90 % | within 1 % | covered | floor, wall, ceiling pixels |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -176,8 +179,8 @@ def _document(rows: list[dict], command: str, code: str) -> str:
         lines_up = "none" if r["lines_up_error_degrees"] is None else f"{r['lines_up_error_degrees']:.3f}"
         lines.append(
             f"| {r['room']} | {r['set']} | {r['views']} @ {r['resolution']} | {r['seconds']:.1f} | {r['up_error_degrees']:.3f} ({lines_up}) | "
-            f"{100 * r['floor_error']:+.1f} / {ceiling} | {walls} | {r['on_walls']:.2f} | {'yes' if r['used'] else 'no'} | "
-            f"{r['without_lines_up_error_degrees']:.3f}, {100 * r['without_lines_floor_error']:+.1f}, {r['without_lines_on_walls']:.2f} | "
+            f"{100 * r['floor_error']:+.1f} / {ceiling} | {walls} | {r['on_walls']:.2f} / {r['near_walls']:.2f} | {'yes' if r['used'] else 'no'} | "
+            f"{r['without_lines_up_error_degrees']:.3f}, {100 * r['without_lines_floor_error']:+.1f}, {r['without_lines_on_walls']:.2f} / {r['without_lines_near_walls']:.2f} | "
             f"{100 * r['depth_rel_median']:.2f} / {100 * r['depth_rel_p90']:.2f} | {100 * r['within_1pct']:.1f} % | "
             f"{100 * r['coverage']:.0f} % | {100 * r['planar_share']:.0f} % |"
         )

@@ -6,14 +6,18 @@ and the build trains on it as it would on sensor depth (``data.layout_depth``, d
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.ndimage import binary_erosion
 
 from scenelabel.data.scene import Scene
-from scenelabel.geometry.layout import MIN_ON_WALLS, RoomLayout, depth_from_layout, layout_class_ids, room_layout
+from scenelabel.geometry.cameras import Cameras
+from scenelabel.geometry.layout import MIN_NEAR_WALLS, WALL_BAND, RoomLayout, layout_class_ids, room_layout
+from scenelabel.geometry.rays import rays_from_cameras
 
-__all__ = ["DEPTH_SOURCE_KEY", "FILL_MARGIN", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "layout_summary", "with_layout_depth"]
+__all__ = ["DEPTH_SOURCE_KEY", "FILL_MARGIN", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "depth_from_layout", "layout_summary",
+           "with_layout_depth"]
 
 DEPTH_SOURCE_KEY = "depth_source"
 """``Scene.info`` key naming where ``sensor_depths`` came from when no sensor measured them."""
@@ -43,6 +47,49 @@ def layout_summary(layout: RoomLayout) -> str:
     return ", ".join(parts) + f" (up {np.round(layout.up, 3).tolist()})"
 
 
+def depth_from_layout(
+    layout: RoomLayout, cameras: Cameras, index: int, label: np.ndarray, class_ids: Mapping[str, int]
+) -> np.ndarray:
+    """[H, W] distance along each pixel's unit ray to the layout plane of its class: the floor or
+    ceiling plane for pixels labelled so, the nearest wall it meets within a wall's extent (and
+    between floor and ceiling) for wall pixels; NaN for other pixels and where no plane is met
+    in front of the camera.
+
+    Args:
+        layout: the room's layout (:func:`~scenelabel.geometry.layout.room_layout`).
+        cameras, index: the view's camera.
+        label: [H, W] its class ids.
+        class_ids: :func:`~scenelabel.geometry.layout.layout_class_ids`.
+    """
+    label = np.asarray(label)
+    origins, directions = rays_from_cameras(cameras, index)
+    flat = label.reshape(-1)
+    depth = np.full(len(flat), np.nan)
+    o_h, d_h = origins @ layout.up, directions @ layout.up
+    for kind, height in (("floor", layout.floor), ("ceiling", layout.ceiling)):
+        if kind in class_ids and height is not None:
+            m = flat == class_ids[kind]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (height - o_h[m]) / d_h[m]
+            depth[m] = np.where(np.isfinite(t) & (t > 0), t, np.nan)
+    if "wall" in class_ids and layout.walls:
+        m = np.nonzero(flat == class_ids["wall"])[0]
+        o2, d2 = origins[m] @ layout.basis.T, directions[m] @ layout.basis.T
+        low = -np.inf if layout.floor is None else layout.floor - WALL_BAND
+        high = np.inf if layout.ceiling is None else layout.ceiling + WALL_BAND
+        nearest = np.full(len(m), np.inf)
+        for wall in layout.walls:
+            with np.errstate(divide="ignore", invalid="ignore"):  # rays along a wall: t inf, no hit
+                t = (wall.offset - o2[:, wall.axis]) / d2[:, wall.axis]
+                along = o2[:, 1 - wall.axis] + d2[:, 1 - wall.axis] * t
+                height = o_h[m] + d_h[m] * t
+                hit = (np.isfinite(t) & (t > 0) & (along >= wall.extent[0]) & (along <= wall.extent[1])
+                       & (height >= low) & (height <= high))
+            nearest = np.where(hit & (t < nearest), t, nearest)
+        depth[m] = np.where(np.isfinite(nearest), nearest, np.nan)
+    return depth.reshape(label.shape)
+
+
 def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout | None]:
     """``scene`` with the depth of its room layout, found from the masks of the ``train`` views
     alone, on the floor, wall and ceiling pixels of those views (held-out views get none).
@@ -57,8 +104,8 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     build collapse in two runs of three (docs/captures.md).
 
     Unchanged (layout None) when its classes name no floor and wall, the masks show no floor-wall
-    boundary, the layout puts less than :data:`~scenelabel.geometry.layout.MIN_ON_WALLS` of the
-    boundaries on its walls (the room is not what it says), or it would give depth to less than
+    boundary, the layout puts less than :data:`~scenelabel.geometry.layout.MIN_NEAR_WALLS` of the
+    boundaries within a pixel's reach of its walls (the room is not what it says), or it would give depth to less than
     MIN_LAYOUT_SHARE of the training pixels (with sensor depth: none).
     """
     ids = layout_class_ids(scene.classes)
@@ -66,7 +113,7 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
         return scene, None
     cameras = scene.cameras[train]
     layout = room_layout(cameras, [scene.labels[i] for i in train], ids, [scene.images[i] for i in train])
-    if layout is None or layout.on_walls < MIN_ON_WALLS:
+    if layout is None or layout.near_walls < MIN_NEAR_WALLS:
         return scene, None
     sensor = scene.sensor_depths
     depths: list[np.ndarray | None] = [None] * len(scene) if sensor is None else list(sensor)
