@@ -551,12 +551,14 @@ def room_layout(
     axis = np.zeros(3)
     axis[int(np.argmax(np.abs(up)))] = np.sign(up[int(np.argmax(np.abs(up)))])
     pixel = 1.0 / float(np.median(np.concatenate([cameras.fx, cameras.fy])))
-    layouts = [_layout_from(floor_rays, ceiling_rays, start, centre, pixel) for start in ([up] if np.allclose(axis, up) else [up, axis])]
+    starts = [up] if np.allclose(axis, up) else [up, axis]
+    layouts = [_layout_from(floor_rays, ceiling_rays, start, centre, pixel) for start in starts]
     vertical = None if images is None else vertical_from_images(cameras, images, up)
     if vertical is not None:
         layouts = [layout for layout in layouts if layout.up @ vertical >= np.cos(np.radians(MAX_OFF_VERTICAL))]
         # the floor's cuts alone lean towards tilted planes: without a ceiling the lines' up stays
-        layouts.append(_layout_from(floor_rays, ceiling_rays, vertical, centre, pixel, ((), _TILTS_FROM_LINES), ceiling_rays is not None))
+        passes = ((), _TILTS_FROM_LINES)
+        layouts.append(_layout_from(floor_rays, ceiling_rays, vertical, centre, pixel, passes, ceiling_rays is not None))
     layout = layouts[0]
     for other in layouts[1:]:
         layout = better_layout(layout, other)
@@ -587,9 +589,9 @@ def _layout_from(
 ) -> RoomLayout:
     """:func:`room_layout` from one starting ``up``, refined in the plane and then along the walls
     by ``passes`` (:func:`_refined_up`'s, one tuple each; ``tilt`` False: up stays, the walls turn).
-    ``pixel``: the angle one pixel spans (radians), for :attr:`RoomLayout.near_walls`. Heights and wall offsets are searched
-    about the cameras' centroid ``centre`` (tilting up then barely moves a plane's height) and
-    given back about the world's origin."""
+    ``pixel``: the angle one pixel spans (radians), for :attr:`RoomLayout.near_walls`. Heights and
+    wall offsets are searched about the cameras' centroid ``centre`` (tilting up then barely moves
+    a plane's height) and given back about the world's origin."""
     floor_rays = (floor_rays[0] - centre, floor_rays[1])
     # up and the floor where the floor's boundary cuts agree in the plane; the walls' direction from
     # those cuts; then up, the floor and that direction where the cuts agree along the walls
