@@ -16,8 +16,16 @@ from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.layout import MIN_NEAR_WALLS, WALL_BAND, RoomLayout, layout_class_ids, room_layout
 from scenelabel.geometry.rays import rays_from_cameras
 
-__all__ = ["DEPTH_SOURCE_KEY", "FILL_MARGIN", "LAYOUT_KEY", "LAYOUT_SOURCE", "MIN_LAYOUT_SHARE", "depth_from_layout", "layout_summary",
-           "with_layout_depth"]
+__all__ = [
+    "DEPTH_SOURCE_KEY",
+    "FILL_MARGIN",
+    "LAYOUT_KEY",
+    "LAYOUT_SOURCE",
+    "MIN_LAYOUT_SHARE",
+    "depth_from_layout",
+    "layout_summary",
+    "with_layout_depth",
+]
 
 DEPTH_SOURCE_KEY = "depth_source"
 """``Scene.info`` key naming where ``sensor_depths`` came from when no sensor measured them."""
@@ -105,8 +113,9 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
 
     Unchanged (layout None) when its classes name no floor and wall, the masks show no floor-wall
     boundary, the layout puts less than :data:`~scenelabel.geometry.layout.MIN_NEAR_WALLS` of the
-    boundaries within a pixel's reach of its walls (the room is not what it says), or it would give depth to less than
-    MIN_LAYOUT_SHARE of the training pixels (with sensor depth: none).
+    boundaries within a pixel's reach of its walls (the room is not what it says), or it would give
+    depth to less than MIN_LAYOUT_SHARE of the training pixels (with sensor depth: none). The
+    layout takes the training photos' straight lines for its vertical (``room_layout``'s images).
     """
     ids = layout_class_ids(scene.classes)
     if "floor" not in ids or "wall" not in ids:
