@@ -51,7 +51,7 @@ import numpy as np
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.rays import rays_from_cameras
-from scenelabel.geometry.vanishing import vertical_from_images
+from scenelabel.geometry.vanishing import tilted, vertical_from_images, world_axis_across
 
 __all__ = [
     "LAYOUT_CLASSES",
@@ -296,7 +296,7 @@ def _cut_agreements(
 
 def _cut_basis(up: np.ndarray, walls: np.ndarray | None) -> np.ndarray:
     """[2, 3] the axes the cuts are binned along: normal to ``up``, one along ``walls`` when given."""
-    return _horizontal(up, _world_axis_across(up) if walls is None else walls)
+    return _horizontal(up, world_axis_across(up) if walls is None else walls)
 
 
 def plane_offset(
@@ -336,18 +336,6 @@ def plane_offset(
     return float(fine[k]), float(scores[k])
 
 
-def _world_axis_across(up: np.ndarray) -> np.ndarray:
-    """World x, or world y where ``up`` is near x: an axis far from parallel to ``up``."""
-    return np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-
-
-def _tilted(up: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``up`` turned by ``a`` and ``b`` degrees about two axes normal to it."""
-    e1, e2 = _horizontal(up, np.cross(up, _world_axis_across(up)))
-    v = up + np.tan(np.radians(a)) * e1 + np.tan(np.radians(b)) * e2
-    return v / np.linalg.norm(v)
-
-
 def _refined_up(
     floor_rays: tuple[np.ndarray, np.ndarray], ceiling_rays: tuple[np.ndarray, np.ndarray] | None,
     up: np.ndarray, walls: np.ndarray | None, passes: tuple[tuple[float, float], ...], tilt: bool = True,
@@ -365,8 +353,8 @@ def _refined_up(
     angles = np.zeros(3)  # tilts about two axes normal to up; the walls' turn about up
 
     def placed(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        tilted = _tilted(up, angles[0], angles[1])
-        return tilted, None if walls is None else _turned(tilted, walls, angles[2])
+        tilted_up = tilted(up, angles[0], angles[1])
+        return tilted_up, None if walls is None else _turned(tilted_up, walls, angles[2])
 
     heights = [plane_offset(*floor_rays, up, True, None, walls)[0], None]
     if ceiling_rays is not None:
@@ -374,12 +362,12 @@ def _refined_up(
     reach = _HEIGHT_REACH
 
     def scored(angles: np.ndarray) -> tuple[float, list]:
-        tilted, along = placed(angles)
-        floor, agreement = plane_offset(*floor_rays, tilted, True, heights[0], along, reach)
+        tilted_up, along = placed(angles)
+        floor, agreement = plane_offset(*floor_rays, tilted_up, True, heights[0], along, reach)
         if ceiling_rays is None:
             return agreement, [floor, None]
-        ceiling = plane_offset(*ceiling_rays, tilted, False, heights[1], along, reach)[0]
-        return _joint_agreement(floor_rays, ceiling_rays, tilted, (floor, ceiling), along), [floor, ceiling]
+        ceiling = plane_offset(*ceiling_rays, tilted_up, False, heights[1], along, reach)[0]
+        return _joint_agreement(floor_rays, ceiling_rays, tilted_up, (floor, ceiling), along), [floor, ceiling]
 
     for half, step in passes:
         for axis in ((0, 1) if walls is None else (0, 1, 2) if tilt else (2,)) * 2:
@@ -600,7 +588,7 @@ def _layout_from(
     if ceiling_rays is not None and len(ceiling_rays[0]):
         ceiling_search = _subsample(ceiling_rays[0] - centre, ceiling_rays[1], MAX_SEARCH_RAYS)
     up, floor, _ = _refined_up(search, ceiling_search, up, None, passes[0])
-    plane = _horizontal(up, _world_axis_across(up))
+    plane = _horizontal(up, world_axis_across(up))
     along = _walls(_cuts(*floor_rays, up, floor) @ plane.T)[0][0] @ plane
     up, floor, along = _refined_up(search, ceiling_search, up, along, passes[1], tilt)
     floor = plane_offset(*floor_rays, up, True, floor, along)[0]

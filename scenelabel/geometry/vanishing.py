@@ -36,6 +36,8 @@ __all__ = [
     "MAX_VIEWS",
     "line_segments",
     "segments_at_most",
+    "world_axis_across",
+    "tilted",
     "segment_normals",
     "vertical_from_normals",
     "vertical_from_images",
@@ -113,17 +115,27 @@ def segment_normals(cameras: Cameras, segments: Sequence[np.ndarray]) -> tuple[n
     return np.concatenate(normals), np.concatenate(weights), np.concatenate(views)
 
 
-def _tilted_grid(start: np.ndarray, half: float, step: float) -> np.ndarray:
-    """[m, 3] unit directions ``start`` tilted on a square grid of (a, b) degrees about two axes
-    normal to it, each in [-half, half] at ``step``."""
-    across = np.array([1.0, 0.0, 0.0]) if abs(start[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(start, across)
+def world_axis_across(up: np.ndarray) -> np.ndarray:
+    """World x, or world y where ``up`` is near x: an axis far from parallel to ``up``."""
+    return np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+
+
+def tilted(up: np.ndarray, a, b) -> np.ndarray:
+    """``up`` [3] (unit) turned by ``a`` and ``b`` degrees (floats, or arrays of one shape) about two
+    axes normal to it: ``up x`` :func:`world_axis_across`, and ``up x`` that. Returns [..., 3] unit."""
+    e1 = np.cross(up, world_axis_across(up))
+    e1 = e1 - (e1 @ up) * up
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(start, e1)
-    t = np.tan(np.radians(np.arange(-half, half + 1e-9, step)))
-    a, b = np.meshgrid(t, t)
-    u = start[None] + a.ravel()[:, None] * e1 + b.ravel()[:, None] * e2
-    return u / np.linalg.norm(u, axis=1, keepdims=True)
+    e2 = np.cross(up, e1)
+    v = up + np.tan(np.radians(a))[..., None] * e1 + np.tan(np.radians(b))[..., None] * e2
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _tilted_grid(start: np.ndarray, half: float, step: float) -> np.ndarray:
+    """[m, 3] unit directions ``start`` :func:`tilted` on a square grid of (a, b) degrees, each in
+    [-half, half] at ``step``."""
+    a, b = np.meshgrid(*[np.arange(-half, half + 1e-9, step)] * 2)
+    return tilted(start, a.ravel(), b.ravel())
 
 
 def vertical_from_normals(
