@@ -364,8 +364,8 @@ def test_with_sensor_depth_the_layout_fills_its_holes_on_floor_wall_and_ceiling_
         assert np.isnan(got[~measured & ~planes[i]]).all()  # furniture's holes stay holes
         near_other = ~binary_erosion(planes[i], iterations=FILL_MARGIN, border_value=1)
         assert np.isnan(got[~measured & near_other]).all()  # and so do those beside furniture
-        if sensor[i] is not None:  # holes within the sensor's reach stay holes
-            assert np.isnan(got[~measured & (true < np.nanmax(sensor[i]) - 0.01)]).all()
+        if sensor[i] is not None:  # holes within the sensor's reach (less the layout's 1 %) stay holes
+            assert np.isnan(got[~measured & (true < 0.99 * np.nanmax(sensor[i]))]).all()
         filled = ~measured & planes[i] & np.isfinite(got)
         assert filled.mean() > 0.5 * (planes[i] & (true > 4.0)).mean()  # most of what lies beyond its reach
         assert np.median(np.abs(got[filled] - true[filled]) / true[filled]) < 0.01

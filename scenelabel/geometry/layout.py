@@ -32,9 +32,10 @@ The steps (numpy only):
    stretch their cuts cover). Once more from the world axis nearest to the cameras' up; and, where
    the photos' straight lines give a vertical (:mod:`scenelabel.geometry.vanishing`), once more
    from it, refined within a degree or so, after ruling out the layouts more than
-   :data:`MAX_OFF_VERTICAL` from it. The first layout stays unless another puts clearly more of
-   the cuts on its walls (``RoomLayout.on_walls``, :func:`better_layout`). A plane is looked for
-   only where boundaries of its kind show in :data:`MIN_BOUNDARY_VIEWS` views.
+   :data:`MAX_OFF_VERTICAL` from it; that layout comes first. The first layout stays unless
+   another puts clearly more of the cuts on its walls (``RoomLayout.on_walls``,
+   :func:`better_layout`). A plane is looked for only where boundaries of its kind show in
+   :data:`MIN_BOUNDARY_VIEWS` views.
 4. :func:`scenelabel.data.layout_depth.depth_from_layout`: per pixel labelled floor, ceiling or
    wall, the distance along its ray to that plane; NaN elsewhere.
 """
@@ -510,8 +511,9 @@ def room_layout(
     (:func:`scenelabel.geometry.vanishing.vertical_from_images`), the layouts further than
     :data:`MAX_OFF_VERTICAL` from it are ruled out and a third search starts from it, refined
     along the walls within about a degree: the cuts' agreement leans towards planes tilted at the
-    cameras, and a forward rig's one or two walls do not hold it (docs/layout.md).
-    :func:`better_layout` picks among the layouts left, in that order.
+    cameras, and a forward rig's one or two walls do not hold it (docs/layout.md). That layout
+    comes first, as its start does not share the lean; :func:`better_layout` lets the others
+    replace it, in order, only where they put clearly more of the cuts on their walls.
 
     Args:
         cameras: the views' cameras.
@@ -546,7 +548,8 @@ def room_layout(
         layouts = [layout for layout in layouts if layout.up @ vertical >= np.cos(np.radians(MAX_OFF_VERTICAL))]
         # the floor's cuts alone lean towards tilted planes: without a ceiling the lines' up stays
         passes = ((), _TILTS_FROM_LINES)
-        layouts.append(_layout_from(floor_rays, ceiling_rays, vertical, centre, pixel, passes, ceiling_rays is not None))
+        from_lines = _layout_from(floor_rays, ceiling_rays, vertical, centre, pixel, passes, ceiling_rays is not None)
+        layouts.insert(0, from_lines)
     layout = layouts[0]
     for other in layouts[1:]:
         layout = better_layout(layout, other)
