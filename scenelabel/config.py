@@ -26,6 +26,8 @@ __all__ = [
     "AUTO",
     "DISTORTION_AUTO_WEIGHT",
     "DISTORTION_THIN_MAX",
+    "SENSOR_FREE_MARGIN",
+    "LAYOUT_FREE_MARGIN",
     "config_from_dict",
     "config_to_dict",
     "render_background",
@@ -255,6 +257,19 @@ to fix a surface's depth, gathering weight into a surface commits it to a wrong 
 scene suite's tuning rooms, between those the term helped and those it harmed (docs/models.md;
 docs/suite.md gives each room's fraction and the weight its build chose)."""
 
+SENSOR_FREE_MARGIN = 0.05
+"""``train.free_margin`` "auto" with sensor depth: the free-space term counts weight in front of
+``depth * (1 - margin) - one marching step``, so measurements off by a few per cent (a phone's LiDAR
+is 1-2 %) and one step of quadrature do not pull a true surface forward."""
+
+LAYOUT_FREE_MARGIN = 0.02
+"""``train.free_margin`` "auto" where all the depth comes from the room's layout
+(:mod:`scenelabel.data.layout_depth`): its planes put 88-100 % of the floor, wall and ceiling pixels
+within 1 % of their depth (docs/layout.md). At :data:`SENSOR_FREE_MARGIN` the free-space term
+pushed the fog of the first steps to the edge of the space it empties, and office-5x4-forward's
+builds kept a wall there, 5 % in front of the true one, in two training seeds of three
+(docs/suite_margin.md)."""
+
 RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""
 
@@ -302,6 +317,10 @@ class TrainConfig:
     # with sensor depth (and depth_weight > 0) the solid-interior term is on at least at this weight:
     # the measured surfaces say where the interior behind them begins (docs/captures.md)
     depth_solid_weight: float = 0.01
+    # the free-space term counts weight in front of depth * (1 - free_margin) - one marching step.
+    # "auto": LAYOUT_FREE_MARGIN where all the depth comes from the room's layout, SENSOR_FREE_MARGIN
+    # otherwise; the build saves the number it chose
+    free_margin: float | str = "auto"
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -349,6 +368,9 @@ class TrainConfig:
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")
+        margin = self.free_margin
+        if margin != AUTO and (isinstance(margin, bool) or not (isinstance(margin, (int, float)) and 0 <= margin < 1)):
+            raise ConfigError(f"train.free_margin must be a fraction in [0, 1) or \"{AUTO}\", got {margin!r}")
         for name in ("distortion_weight", "tv_weight", "solid_weight", "depth_weight", "depth_solid_weight"):
             w = getattr(self, name)
             if name == "distortion_weight" and w == AUTO:

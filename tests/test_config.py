@@ -87,6 +87,10 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"background": "blue"}},
         {"train": {"distortion_start": 1.5}},
         {"train": {"distortion_start": -0.1}},
+        {"train": {"free_margin": 1.0}},
+        {"train": {"free_margin": -0.01}},
+        {"train": {"free_margin": True}},
+        {"train": {"free_margin": "wide"}},
         {"train": {"background": [1.0, 2.0, 0.0]}},
         {"train": {"background": [1.0, 1.0]}},
         {"train": {"steps": -1}},
@@ -98,7 +102,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin"):
         preset("fast", overrides)
 
 

@@ -410,19 +410,22 @@ def test_a_layout_that_leaves_the_boundaries_off_its_walls_is_not_used(room):
 
 def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     """The build records the layout as its depth source and trains as with sensor depth (the
-    grid decay "auto" resolves to the with-depth value); with data.layout_depth false, neither."""
+    grid decay "auto" resolves to the with-depth value), its free-space margin the layout's; with
+    data.layout_depth false, neither."""
     from scenelabel import build, preset
-    from scenelabel.config import GRID_DECAY, GRID_DECAY_WITH_DEPTH
+    from scenelabel.config import GRID_DECAY, GRID_DECAY_WITH_DEPTH, LAYOUT_FREE_MARGIN, SENSOR_FREE_MARGIN
 
     config = preset("quick", {"train": {"steps": 2}, "output": {"write_map": False, "write_renders": False}})
     result = build(room, tmp_path / "with", config, progress=False)
     assert "room layout" in result.field.meta["scene_info"][DEPTH_SOURCE_KEY]
     assert result.field.config.sampling.grid_decay == GRID_DECAY_WITH_DEPTH
     assert result.field.config.sampling.depth_carve is False  # furniture has no depth to guard it from carving
+    assert result.field.config.train.free_margin == LAYOUT_FREE_MARGIN
     config.data.layout_depth = False
     result = build(room, tmp_path / "without", config, progress=False)
     assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]
     assert result.field.config.sampling.grid_decay == GRID_DECAY
+    assert result.field.config.train.free_margin == SENSOR_FREE_MARGIN  # no depth: no effect
 
 
 def test_bounds_from_a_layout_reach_the_cameras(office_forward, tmp_path):

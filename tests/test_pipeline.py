@@ -275,6 +275,20 @@ def test_auto_distortion_follows_how_well_the_views_see_the_scene():
     assert config.train.distortion_weight == 0.01 and record["why"] == "as configured"
 
 
+def test_auto_free_margin_follows_where_the_depth_comes_from():
+    """resolve_free_margin: "auto" is LAYOUT_FREE_MARGIN where all the depth is the layout's, else
+    SENSOR_FREE_MARGIN; a number stays. A trainer made without the build takes a sensor's."""
+    from scenelabel.config import LAYOUT_FREE_MARGIN, SENSOR_FREE_MARGIN
+    from scenelabel.train.choices import resolve_free_margin
+
+    auto = preset("quick")
+    assert auto.train.free_margin == AUTO and LAYOUT_FREE_MARGIN < SENSOR_FREE_MARGIN
+    assert resolve_free_margin(auto, True).train.free_margin == LAYOUT_FREE_MARGIN
+    assert resolve_free_margin(auto, False).train.free_margin == SENSOR_FREE_MARGIN
+    fixed = preset("quick", {"train": {"free_margin": 0.1}})
+    assert resolve_free_margin(fixed, True).train.free_margin == 0.1
+
+
 def test_an_object_capture_without_bounds_is_bounded_by_its_silhouettes(tmp_path):
     """The toy's two boxes without the floor, no near/far, no aabb, the backdrop labelled FREE
     (classes.json's free_index): every view shows the object whole, so the bounds are the

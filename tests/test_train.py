@@ -198,7 +198,7 @@ def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
         with torch.no_grad():
             out, _, _ = trainer.render(
                 r.origins[idx], r.directions[idx], r.t_min[idx], r.t_max[idx], torch.full((len(idx),), 0.5),
-                options=CompositeOptions(free_until=free_space_limit(r.depth[idx], trainer.marching.step)),
+                options=CompositeOptions(free_until=free_space_limit(r.depth[idx], trainer.marching.step, trainer.free_margin)),
             )
         front[weight] = float(out.front_weight.mean())
     assert front[0.1] < 0.5 * front[0.0], front

@@ -1,6 +1,6 @@
 """What a build chooses from the scene before it trains (config and geometry only; the pipeline
-calls them): what the preset "auto" becomes, the distortion term's weight, and how far a box of
-uniform cells fitted to a room's layout reaches.
+calls them): what the preset "auto" becomes, the distortion term's weight, the free-space term's
+margin, and how far a box of uniform cells fitted to a room's layout reaches.
 """
 
 from __future__ import annotations
@@ -9,12 +9,29 @@ import dataclasses
 
 import numpy as np
 
-from scenelabel.config import AUTO, AUTO_PRESET, DISTORTION_AUTO_WEIGHT, DISTORTION_THIN_MAX, BuildConfig, with_preset
+from scenelabel.config import (
+    AUTO,
+    AUTO_PRESET,
+    DISTORTION_AUTO_WEIGHT,
+    DISTORTION_THIN_MAX,
+    LAYOUT_FREE_MARGIN,
+    SENSOR_FREE_MARGIN,
+    BuildConfig,
+    with_preset,
+)
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.coverage import THIN_VIEWS
 from scenelabel.geometry.warps import capture_reference
 
-__all__ = ["FORWARD_PRESET", "INWARD_PRESET", "resolve_preset", "resolve_distortion", "reaching_cameras", "box_warp"]
+__all__ = [
+    "FORWARD_PRESET",
+    "INWARD_PRESET",
+    "resolve_preset",
+    "resolve_distortion",
+    "resolve_free_margin",
+    "reaching_cameras",
+    "box_warp",
+]
 
 
 FORWARD_PRESET, INWARD_PRESET = "voxels", "fast"
@@ -77,6 +94,17 @@ def resolve_distortion(config: BuildConfig, thinly_seen: float | None) -> tuple[
         )
     resolved = dataclasses.replace(config, train=dataclasses.replace(tc, distortion_weight=weight))
     return resolved, {"weight": weight, "thinly_seen": thinly_seen, "why": why}
+
+
+def resolve_free_margin(config: BuildConfig, from_layout: bool) -> BuildConfig:
+    """``config`` with ``train.free_margin`` a number: ``"auto"`` becomes LAYOUT_FREE_MARGIN where all
+    the training depth comes from the room's layout (``from_layout``), else SENSOR_FREE_MARGIN; a number
+    stays as given."""
+    tc = config.train
+    if tc.free_margin != AUTO:
+        return config
+    margin = LAYOUT_FREE_MARGIN if from_layout else SENSOR_FREE_MARGIN
+    return dataclasses.replace(config, train=dataclasses.replace(tc, free_margin=margin))
 
 
 def reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from torch import nn
 from tqdm import tqdm
 
 from scenelabel.codes import FREE
-from scenelabel.config import AUTO, RANDOM_BACKGROUND, BuildConfig, resolve_by_depth
+from scenelabel.config import AUTO, RANDOM_BACKGROUND, SENSOR_FREE_MARGIN, BuildConfig, resolve_by_depth
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
 from scenelabel.fields.model import FieldNetwork
@@ -74,16 +74,11 @@ GRID_ALL_CELLS_UPDATES = 4
 a random quarter (each full refresh of a 64³ grid costs as much as several training steps)."""
 
 
-FREE_MARGIN = 0.05
-"""The free-space term (:func:`~scenelabel.train.losses.free_space_loss`) counts weight in front of
-``depth * (1 - FREE_MARGIN) - step``: measurements off by a few per cent (a phone's LiDAR is 1-2 %)
-and one marching step of quadrature do not pull a true surface forward."""
-
-
-def free_space_limit(target: torch.Tensor, step: float) -> torch.Tensor:
-    """[n_rays] distances before which a ray with measured depth ``target`` [n_rays] should be empty
-    (NaN where there is no measurement)."""
-    return target * (1.0 - FREE_MARGIN) - step
+def free_space_limit(target: torch.Tensor, step: float, margin: float) -> torch.Tensor:
+    """[n_rays] distances before which a ray with measured depth ``target`` [n_rays] should be empty,
+    ``target * (1 - margin) - step`` (``train.free_margin``: the measurement's relative error; ``step``:
+    one marching step of quadrature); NaN where there is no measurement."""
+    return target * (1.0 - margin) - step
 
 
 @contextmanager
@@ -324,6 +319,8 @@ class Trainer:
         self.solid_weight = max(tc.solid_weight, tc.depth_solid_weight) if with_depth else tc.solid_weight
         # "auto" is resolved by the build (choices.resolve_distortion); a trainer made without it: off
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
+        # "auto" is resolved by the build (choices.resolve_free_margin); a trainer made without it: a sensor's
+        self.free_margin = SENSOR_FREE_MARGIN if tc.free_margin == AUTO else float(tc.free_margin)
         self.config = resolve_by_depth(config, with_depth)  # grid_decay, steps, budget "auto": by the rays' depth
         self.state = TrainState()
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
@@ -408,7 +405,7 @@ class Trainer:
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
             background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
         target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
-        free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step)
+        free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step, self.free_margin)
         t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
         out, coarse_out, solid_sigmas = self.render(
             r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
