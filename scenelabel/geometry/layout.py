@@ -116,7 +116,7 @@ WALL_BAND = 0.03
 MIN_NEAR_WALLS = 0.55
 """A layout with less than this share of its boundary cuts within a pixel's reach of its walls
 (:attr:`RoomLayout.near_walls`) is not what the room is: :mod:`scenelabel.data.layout_depth` does
-not use it. Every layout of docs/layout.md has at least 0.98 there; masks strewn at random, none.
+not use it. Every layout of docs/layout.md has at least 0.97 there; masks strewn at random, none.
 (The share within :data:`WALL_BAND` alone, ``on_walls``, is 0.54-0.68 on most forward rigs, whose
 far walls are seen at grazing angles, and 0.45 on the bench room at 80x60, whose layout is as
 good as at 160x120: that share refused right layouts.)"""
