@@ -74,8 +74,8 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
     import dataclasses
 
     from scenelabel import load_scene
-    from scenelabel.data.layout_depth import MIN_LAYOUT_SHARE, depth_from_layout
-    from scenelabel.geometry.layout import MIN_NEAR_WALLS, layout_class_ids, room_layout
+    from scenelabel.data.layout_depth import depth_from_layout, with_layout_depth
+    from scenelabel.geometry.layout import layout_class_ids, room_layout
     from scenelabel.geometry.vanishing import vertical_from_images
     from scenelabel.train.pipeline import split_views
 
@@ -111,6 +111,7 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
         planar_total += int(planar.sum())
     errors = np.concatenate(errors)
     pixels = sum(int(np.prod(scene.labels[i].shape)) for i in train)
+    used = with_layout_depth(dataclasses.replace(scene, cameras=cams), train)[1] is not None  # a build's own decision
     def degrees_off(direction: np.ndarray | None) -> float | None:
         return None if direction is None else float(np.degrees(np.arccos(min(1.0, float(direction @ up)))))
 
@@ -132,7 +133,7 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
         "wall_error_max": float(max(wall_errors)) if wall_errors else None,
         "on_walls": layout.on_walls,
         "near_walls": layout.near_walls,
-        "used": bool(layout.near_walls >= MIN_NEAR_WALLS and covered >= MIN_LAYOUT_SHARE * pixels),
+        "used": used,
         "depth_rel_median": float(np.median(errors)),
         "depth_rel_p90": float(np.percentile(errors, 90)),
         "within_1pct": float(np.mean(errors < 0.01)),
