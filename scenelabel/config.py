@@ -273,6 +273,10 @@ edge still held seed 1's wall."""
 
 RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""
+DEPTH_RANDOM_BACKGROUND = RANDOM_BACKGROUND
+"""``train.depth_background``: a random colour behind each training ray that carries depth."""
+DEPTH_SCENE_BACKGROUND = "scene"
+"""``train.depth_background``: ``train.background`` behind rays with depth too."""
 
 
 def render_background(background: tuple[float, float, float] | str | None) -> tuple[float, float, float] | None:
@@ -322,6 +326,11 @@ class TrainConfig:
     # "auto": LAYOUT_FREE_MARGIN where all the depth comes from the room's layout, SENSOR_FREE_MARGIN
     # otherwise; the build saves the number it chose
     free_margin: float | str = "auto"
+    # the colour behind a training ray that carries depth: "random" (a new random colour per ray and
+    # step: the ray must be opaque by its measured surface, since a room has no backdrop behind it, and a
+    # wall left half transparent in front of the white background no longer matches its pixels) |
+    # "scene" (train.background, as every other ray)
+    depth_background: str = DEPTH_RANDOM_BACKGROUND
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -369,6 +378,7 @@ class TrainConfig:
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")
+        _check_choice("train.depth_background", self.depth_background, (DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND))
         margin = self.free_margin
         if margin != AUTO and (isinstance(margin, bool) or not (isinstance(margin, (int, float)) and 0 <= margin < 1)):
             raise ConfigError(f"train.free_margin must be a fraction in [0, 1) or \"{AUTO}\", got {margin!r}")

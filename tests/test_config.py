@@ -91,6 +91,8 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"free_margin": -0.01}},
         {"train": {"free_margin": True}},
         {"train": {"free_margin": "wide"}},
+        {"train": {"depth_background": "white"}},
+        {"train": {"depth_background": None}},
         {"train": {"background": [1.0, 2.0, 0.0]}},
         {"train": {"background": [1.0, 1.0]}},
         {"train": {"steps": -1}},
@@ -102,7 +104,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background"):
         preset("fast", overrides)
 
 

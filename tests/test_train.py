@@ -16,7 +16,7 @@ from scenelabel.render.marcher import CompositeOptions
 from scenelabel.render.sampling import CARVE_MARGIN
 from scenelabel.train.losses import DEPTH_HUBER, total_variation
 from scenelabel.train.pipeline import prepare_training
-from scenelabel.train.trainer import free_space_limit
+from scenelabel.train.trainer import backgrounds_for_rays, free_space_limit
 
 pytestmark = pytest.mark.slow
 
@@ -202,6 +202,37 @@ def test_sensor_depth_clears_the_fog_in_front_of_surfaces(scene):
             )
         front[weight] = float(out.front_weight.mean())
     assert front[0.1] < 0.5 * front[0.0], front
+
+
+def test_measured_rays_train_on_a_random_background_and_the_others_on_the_scenes():
+    colours = torch.rand(4, 3)
+    measured = torch.tensor([True, False, True, False])
+    for background, expected_rest in ((torch.tensor([1.0, 1.0, 1.0]), 1.0), (None, 0.0)):
+        out = backgrounds_for_rays(background, measured, colours)
+        assert torch.equal(out[measured], colours[measured])
+        assert torch.all(out[~measured] == expected_rest)
+    per_ray = torch.rand(4, 3)  # train.background "random": one colour per ray already
+    assert torch.equal(backgrounds_for_rays(per_ray, measured, colours)[~measured], per_ray[~measured])
+
+
+def test_a_wall_left_transparent_pays_only_with_the_random_background_behind_measured_rays(scene):
+    """White views, a transparent field: with the white background behind every ray the render
+    matches every pixel, so nothing in the photometric loss asks a measured surface to be opaque
+    (a forward rig's white wall stayed half transparent, docs/suite_depth_background.md); with a
+    random colour behind the measured rays it pays for them, and only for them."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    white = dataclasses.replace(loaded, images=[np.ones_like(image) for image in loaded.images])
+    mse = {}
+    for depth_background in ("scene", "random"):
+        config = preset("quick", {"train": {"depth_background": depth_background}, "field": {"density_bias": -30.0}})
+        trainer, _, _ = prepare_training(white, config, torch.device("cpu"))
+        assert trainer.config.train.background == (1.0, 1.0, 1.0)
+        mse[depth_background] = trainer.train_step()["mse"]
+    measured = float(torch.isfinite(trainer.rays.depth).float().mean())
+    assert 0.2 < measured < 0.9  # the toy's boxes: some rays see them, the others its backdrop
+    assert mse["scene"] < 1e-8
+    # E[(1 - u)^2] = 1/3 for u uniform, on the measured share of the batch
+    assert 0.5 * measured / 3 < mse["random"] < 1.5 * measured / 3, (mse, measured)
 
 
 def test_sensor_depth_carves_the_grid_in_front_of_the_measured_surfaces(scene):

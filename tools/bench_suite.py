@@ -59,6 +59,7 @@ VARIANTS: dict[str, dict] = {
     "distortion-0.0005": {"train": {"distortion_weight": 0.0005}},
     "distortion-0.01": {"train": {"distortion_weight": 0.01}},
     "margin-0.05": {"train": {"free_margin": 0.05}},  # the free-space margin layout depth had before
+    "depth-bg-scene": {"train": {"depth_background": "scene"}},  # rays with depth on the white background, as before
     # the room written with depth as a phone gives it (scenelabel.data.synthetic.add_phone_depth:
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
     "phone-depth": {"capture": "phone-depth"},
@@ -90,6 +91,7 @@ NOTES: dict[str, str] = {
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
+    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; default \"random\": a random colour behind them)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
@@ -118,6 +120,7 @@ SEEDS = (1, 2)
 for _seed in SEEDS:
     VARIANTS[f"seed-{_seed}"] = {"train": {"seed": _seed}}
     VARIANTS[f"margin-0.05-seed-{_seed}"] = {"train": {"free_margin": 0.05, "seed": _seed}}
+    VARIANTS[f"depth-bg-scene-seed-{_seed}"] = {"train": {"depth_background": "scene", "seed": _seed}}
     VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
     DEPTH_NOTES[f"phone-depth-seed-{_seed}"] = f"the default preset with training seed {_seed} (`train.seed`; default 0)"
 

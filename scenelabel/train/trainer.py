@@ -19,7 +19,14 @@ from torch import nn
 from tqdm import tqdm
 
 from scenelabel.codes import FREE
-from scenelabel.config import AUTO, RANDOM_BACKGROUND, SENSOR_FREE_MARGIN, BuildConfig, resolve_by_depth
+from scenelabel.config import (
+    AUTO,
+    DEPTH_RANDOM_BACKGROUND,
+    RANDOM_BACKGROUND,
+    SENSOR_FREE_MARGIN,
+    BuildConfig,
+    resolve_by_depth,
+)
 from scenelabel.data.scene import ClassMap, Scene
 from scenelabel.errors import ConfigError, TrainingError, TrainingInterrupted
 from scenelabel.fields.model import FieldNetwork
@@ -79,6 +86,20 @@ def free_space_limit(target: torch.Tensor, step: float, margin: float) -> torch.
     ``target * (1 - margin) - step`` (``train.free_margin``: the measurement's relative error; ``step``:
     one marching step of quadrature); NaN where there is no measurement."""
     return target * (1.0 - margin) - step
+
+
+def backgrounds_for_rays(
+    background: torch.Tensor | None,  # [3] or [n_rays, 3]; None: black
+    measured: torch.Tensor,  # [n_rays] bool: the ray carries a measured depth
+    colours: torch.Tensor,  # [n_rays, 3] random colours in [0, 1]
+) -> torch.Tensor:
+    """[n_rays, 3] the colour behind each training ray: ``colours`` where the ray carries a measured
+    depth, ``background`` elsewhere (``train.depth_background`` "random"). A measured ray ends at its
+    surface, and a room has no backdrop behind it: with the white background a wall left half
+    transparent in front of it matches its pixels in every view of a forward rig, and the field can stay
+    that way (office-5x4-forward, docs/suite_depth_background.md); a random colour never matches."""
+    base = torch.zeros(3, dtype=colours.dtype, device=colours.device) if background is None else background
+    return torch.where(measured[:, None], colours, base.expand_as(colours))
 
 
 @contextmanager
@@ -405,6 +426,9 @@ class Trainer:
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
             background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
         target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
+        if target_depth is not None and tc.depth_background == DEPTH_RANDOM_BACKGROUND:
+            colours = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
+            background = backgrounds_for_rays(background, torch.isfinite(target_depth), colours)
         free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step, self.free_margin)
         t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
         out, coarse_out, solid_sigmas = self.render(
