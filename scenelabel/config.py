@@ -329,8 +329,9 @@ class TrainConfig:
     # the colour behind a training ray that carries depth: "random" (a new random colour per ray and
     # step: the ray must be opaque by its measured surface, since a room has no backdrop behind it, and a
     # wall left half transparent in front of the white background no longer matches its pixels) |
-    # "scene" (train.background, as every other ray)
-    depth_background: str = DEPTH_RANDOM_BACKGROUND
+    # "scene" (train.background, as every other ray) | "auto": "random" where the training cameras all
+    # look one way (geometry.frame.looking_one_way), "scene" otherwise; the build saves its choice
+    depth_background: str = AUTO
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -378,7 +379,7 @@ class TrainConfig:
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")
-        _check_choice("train.depth_background", self.depth_background, (DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND))
+        _check_choice("train.depth_background", self.depth_background, (AUTO, DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND))
         margin = self.free_margin
         if margin != AUTO and (isinstance(margin, bool) or not (isinstance(margin, (int, float)) and 0 <= margin < 1)):
             raise ConfigError(f"train.free_margin must be a fraction in [0, 1) or \"{AUTO}\", got {margin!r}")

@@ -437,6 +437,7 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     assert result.field.config.sampling.grid_decay == GRID_DECAY_WITH_DEPTH
     assert result.field.config.sampling.depth_carve is False  # furniture has no depth to guard it from carving
     assert result.field.config.train.free_margin == LAYOUT_FREE_MARGIN
+    assert result.field.config.train.depth_background == "scene"  # cameras all around the room
     config.data.layout_depth = False
     result = build(room, tmp_path / "without", config, progress=False)
     assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]
@@ -455,7 +456,9 @@ def test_bounds_from_a_layout_reach_the_cameras(office_forward, tmp_path):
     for warp in ("box", "forward"):
         config = preset("quick", {"sampling": {"warp": warp}, "train": {"steps": 2},
                                   "output": {"write_map": False, "write_renders": False}})
-        meta = build(office_forward, tmp_path / warp, config, progress=False).field.meta
+        field = build(office_forward, tmp_path / warp, config, progress=False).field
+        meta = field.meta
+        assert field.config.train.depth_background == "random"  # the rig looks one way
         assert meta["aabb_source"].startswith(LAYOUT_SOURCE)
         assert ("reaching the cameras" in meta["aabb_source"]) == (warp == "box")
         boxes[warp] = np.asarray(meta["aabb_world"])

@@ -17,7 +17,7 @@ from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
-from scenelabel.train.choices import resolve_preset
+from scenelabel.train.choices import resolve_depth_background, resolve_preset
 from scenelabel.train.pipeline import resume_config, split_views
 
 
@@ -193,6 +193,18 @@ def test_preset_auto_is_voxels_for_forward_facing_cameras_and_fast_otherwise(sma
     for name in ("fast", "voxels", "quick"):  # a named preset is as given
         assert resolve_preset(preset(name), _forward_cameras()) == (preset(name), None)
         assert resolve_preset(preset(name), _forward_cameras(), room=True) == (preset(name), None)
+
+
+def test_depth_background_auto_is_random_where_the_cameras_look_one_way(small_toy):
+    def chosen(config, cameras):
+        return resolve_depth_background(config, cameras).train.depth_background
+
+    assert preset().train.depth_background == AUTO
+    assert chosen(preset(), _forward_cameras()) == "random"
+    assert chosen(preset(), load_scene(small_toy).cameras) == "scene"  # an orbit sees through a half-clear wall
+    for given in ("random", "scene"):  # a choice given stays
+        for cameras in (_forward_cameras(), load_scene(small_toy).cameras):
+            assert chosen(preset("fast", {"train": {"depth_background": given}}), cameras) == given
 
 
 def test_preset_auto_gives_forward_facing_cameras_before_a_room_fast_in_uniform_cells(small_toy):

@@ -1,6 +1,6 @@
 """What a build chooses from the scene before it trains (config and geometry only; the pipeline
 calls them): what the preset "auto" becomes, the distortion term's weight, the free-space term's
-margin, and how far a box of uniform cells fitted to a room's layout reaches.
+margin, the colour behind rays with depth, and how far a box of uniform cells fitted to a room's layout reaches.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import numpy as np
 from scenelabel.config import (
     AUTO,
     AUTO_PRESET,
+    DEPTH_RANDOM_BACKGROUND,
+    DEPTH_SCENE_BACKGROUND,
     DISTORTION_AUTO_WEIGHT,
     DISTORTION_THIN_MAX,
     LAYOUT_FREE_MARGIN,
@@ -21,6 +23,7 @@ from scenelabel.config import (
 )
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.coverage import THIN_VIEWS
+from scenelabel.geometry.frame import looking_one_way
 from scenelabel.geometry.warps import capture_reference
 
 __all__ = [
@@ -29,6 +32,7 @@ __all__ = [
     "resolve_preset",
     "resolve_distortion",
     "resolve_free_margin",
+    "resolve_depth_background",
     "reaching_cameras",
     "box_warp",
 ]
@@ -105,6 +109,21 @@ def resolve_free_margin(config: BuildConfig, from_layout: bool) -> BuildConfig:
         return config
     margin = LAYOUT_FREE_MARGIN if from_layout else SENSOR_FREE_MARGIN
     return dataclasses.replace(config, train=dataclasses.replace(tc, free_margin=margin))
+
+
+def resolve_depth_background(config: BuildConfig, cameras: Cameras) -> BuildConfig:
+    """``config`` with ``train.depth_background`` "auto" made "random" where the training ``cameras``
+    all look one way (:func:`scenelabel.geometry.frame.looking_one_way`), "scene" otherwise; a choice
+    given stays. Looking one way, every view sees a surface from the same side, so a wall left half
+    transparent in front of the white background matches its pixels in all of them, and
+    office-5x4-forward's build stayed that way in some training seeds; cameras all around see
+    through such a wall to the room's other side, and there the random colour only cost time (30 instead
+    of 15-21 samples per ray on office-5x4 and living-6x5: docs/suite_depth_background.md)."""
+    tc = config.train
+    if tc.depth_background != AUTO:
+        return config
+    choice = DEPTH_RANDOM_BACKGROUND if looking_one_way(cameras) else DEPTH_SCENE_BACKGROUND
+    return dataclasses.replace(config, train=dataclasses.replace(tc, depth_background=choice))
 
 
 def reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:

@@ -55,7 +55,14 @@ from scenelabel.query.build_outputs import MAP_NAME
 from scenelabel.query.field import TRAIN_CAMERAS_KEY, SemanticField
 from scenelabel.render.sampling import CARVE_MARGIN, DensityGrid, free_cells_from_depth, march
 from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight, weights_from_density
-from scenelabel.train.choices import box_warp, reaching_cameras, resolve_distortion, resolve_free_margin, resolve_preset
+from scenelabel.train.choices import (
+    box_warp,
+    reaching_cameras,
+    resolve_depth_background,
+    resolve_distortion,
+    resolve_free_margin,
+    resolve_preset,
+)
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
 from scenelabel.train.evaluation import evaluate, expected_finish_seconds
 from scenelabel.train.trainer import Trainer, rays_for_views
@@ -378,6 +385,7 @@ def prepare_training(
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
     config = resolve_free_margin(config, scene.info.get(DEPTH_SOURCE_KEY) == LAYOUT_SOURCE)
+    config = resolve_depth_background(config, scene.cameras[train_idx])
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, scene.cameras[train_idx]):
         reached = reaching_cameras(aabb, scene.cameras[train_idx].centres)
