@@ -60,6 +60,7 @@ VARIANTS: dict[str, dict] = {
     "distortion-0.01": {"train": {"distortion_weight": 0.01}},
     "margin-0.05": {"train": {"free_margin": 0.05}},  # the free-space margin layout depth had before
     "depth-bg-scene": {"train": {"depth_background": "scene"}},  # rays with depth on the white background, as before
+    "depth-bg-random": {"train": {"depth_background": "random"}},  # a random colour behind them, whatever the cameras
     # the room written with depth as a phone gives it (scenelabel.data.synthetic.add_phone_depth:
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
     "phone-depth": {"capture": "phone-depth"},
@@ -92,6 +93,7 @@ NOTES: dict[str, str] = {
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
     "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; default \"random\": a random colour behind them)",
+    "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where the training cameras all look one way, and \"scene\", the white background, to cameras all around)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)

@@ -117,8 +117,8 @@ def resolve_depth_background(config: BuildConfig, cameras: Cameras) -> BuildConf
     given stays. Looking one way, every view sees a surface from the same side, so a wall left half
     transparent in front of the white background matches its pixels in all of them, and
     office-5x4-forward's build stayed that way in some training seeds; cameras all around see
-    through such a wall to the room's other side, and there the random colour only cost time (30 instead
-    of 15-21 samples per ray on office-5x4 and living-6x5: docs/suite_depth_background.md)."""
+    through such a wall to the room's other side, and there the random colour only cost time
+    (docs/suite_depth_background_inward.md; forward rooms: docs/suite_depth_background.md)."""
     tc = config.train
     if tc.depth_background != AUTO:
         return config
