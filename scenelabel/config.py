@@ -379,7 +379,8 @@ class TrainConfig:
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")
-        _check_choice("train.depth_background", self.depth_background, (AUTO, DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND))
+        depth_backgrounds = (AUTO, DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND)
+        _check_choice("train.depth_background", self.depth_background, depth_backgrounds)
         margin = self.free_margin
         if margin != AUTO and (isinstance(margin, bool) or not (isinstance(margin, (int, float)) and 0 <= margin < 1)):
             raise ConfigError(f"train.free_margin must be a fraction in [0, 1) or \"{AUTO}\", got {margin!r}")

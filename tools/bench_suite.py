@@ -92,7 +92,7 @@ NOTES: dict[str, str] = {
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
-    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; default \"random\": a random colour behind them)",
+    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; \"auto\", the default, gives cameras that all look one way \"random\": a random colour behind them)",
     "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where the training cameras all look one way, and \"scene\", the white background, to cameras all around)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
 }

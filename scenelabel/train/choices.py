@@ -1,6 +1,7 @@
 """What a build chooses from the scene before it trains (config and geometry only; the pipeline
 calls them): what the preset "auto" becomes, the distortion term's weight, the free-space term's
-margin, the colour behind rays with depth, and how far a box of uniform cells fitted to a room's layout reaches.
+margin, the colour behind rays with depth, and how far a box of uniform cells fitted to a room's
+layout reaches.
 """
 
 from __future__ import annotations
