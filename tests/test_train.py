@@ -218,8 +218,8 @@ def test_measured_rays_train_on_a_random_background_and_the_others_on_the_scenes
 def test_a_wall_left_transparent_pays_only_with_the_random_background_behind_measured_rays(scene):
     """White views, a transparent field: with the white background behind every ray the render
     matches every pixel, so nothing in the photometric loss asks a measured surface to be opaque
-    (a forward rig's white wall stayed half transparent, docs/suite_depth_background.md); with a
-    random colour behind the measured rays it pays for them, and only for them."""
+    (office-5x4-forward's walls stayed half transparent in front of it, docs/suite_depth_background.md);
+    with a random colour behind the measured rays it pays for them, and only for them."""
     loaded = _with_sensor_depth(load_scene(scene))
     white = dataclasses.replace(loaded, images=[np.ones_like(image) for image in loaded.images])
     mse = {}
