@@ -370,6 +370,7 @@ def prepare_training(
     _seed_everything(config.train.seed)
 
     train_idx, test_idx, split_rule = choose_views(scene, config.train.holdout)
+    train_cameras = scene.cameras[train_idx]
     class_map = _class_map(scene, train_idx)
     points, seen_by, thinly_seen = None, scene.info.get(DEPTH_SOURCE_KEY, "sensor depth"), None
     if scene.aabb is None and not np.all(np.isfinite(scene.cameras.far)):
@@ -379,16 +380,16 @@ def prepare_training(
             if points is None:
                 points = observed_points(scene, train_idx, class_map, config, device, progress and context.is_main)
                 seen_by = "observed geometry"
-            thinly_seen = thinly_seen_fraction(scene.cameras[train_idx], points)
+            thinly_seen = thinly_seen_fraction(train_cameras, points)
             if context.distributed:  # every rank trains with rank 0's choice
                 thinly_seen = float(broadcast_array(np.array([thinly_seen]), device)[0])
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
     config = resolve_free_margin(config, scene.info.get(DEPTH_SOURCE_KEY) == LAYOUT_SOURCE)
-    config = resolve_depth_background(config, scene.cameras[train_idx])
+    config = resolve_depth_background(config, train_cameras)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
-    if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, scene.cameras[train_idx]):
-        reached = reaching_cameras(aabb, scene.cameras[train_idx].centres)
+    if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, train_cameras):
+        reached = reaching_cameras(aabb, train_cameras.centres)
         if not np.array_equal(reached, aabb):
             aabb, aabb_source = reached, aabb_source + ", reaching the cameras"
     if context.distributed:
@@ -415,7 +416,7 @@ def prepare_training(
         "split": split_rule,
         "distortion": distortion,
         "carved_by_depth": float(trainer.grid.carved.float().mean()),  # grid cells sensor depth showed empty
-        TRAIN_CAMERAS_KEY: cameras_to_dict(scene.cameras[train_idx]),  # world frame, for the maps' unknown rule
+        TRAIN_CAMERAS_KEY: cameras_to_dict(train_cameras),  # world frame, for the maps' unknown rule
         "scene_info": {k: v for k, v in scene.info.items() if k != "class_colors"},
     }
     return trainer, static, test_idx
