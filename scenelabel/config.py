@@ -144,6 +144,10 @@ class SamplingConfig:
     # depth (plus CARVE_MARGIN of it), not at the box: behind a surface nothing is seen (0: at the box).
     # The depth term still places a ray's transparent rest at the box's far side
     depth_ray_end: float = 2.0
+    # training evaluates a ray's samples in order and stops where its transmittance falls below this
+    # (render.marcher.render_rays' min_trans; nerfacc's early_stop_eps): what lies behind an opaque
+    # surface gets no gradient worth the work (0: every sample in an occupied cell)
+    train_min_trans: float = 1e-4
     # rays per chunk when rendering outside training: a 160x120 view in one chunk (the early-stop marcher
     # evaluates at most chunk_rays x EARLY_STOP_SEGMENT samples at once; per chunk it pays a fixed cost)
     chunk_rays: int = 32768
@@ -168,6 +172,9 @@ class SamplingConfig:
             raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
         if not isinstance(self.grid_from_training, bool):
             raise ConfigError(f"sampling.grid_from_training must be true or false, got {self.grid_from_training!r}")
+        stop = self.train_min_trans
+        if isinstance(stop, bool) or not (isinstance(stop, (int, float)) and 0 <= stop < 1):
+            raise ConfigError(f"sampling.train_min_trans must be a number in [0, 1), got {stop!r}")
         end = self.depth_ray_end
         if isinstance(end, bool) or not (isinstance(end, (int, float)) and math.isfinite(end) and end >= 0):
             raise ConfigError(f"sampling.depth_ray_end must be a finite number >= 0, got {end!r}")

@@ -84,6 +84,10 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"depth_carve_until": 1.5}},
         {"sampling": {"depth_ray_end": float("inf")}},
         {"sampling": {"depth_ray_end": True}},
+        {"sampling": {"train_min_trans": 1.0}},
+        {"sampling": {"train_min_trans": -1e-4}},
+        {"sampling": {"train_min_trans": float("nan")}},
+        {"sampling": {"train_min_trans": True}},
         {"train": {"background": "blue"}},
         {"train": {"distortion_start": 1.5}},
         {"train": {"distortion_start": -0.1}},
@@ -104,7 +108,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background|train_min_trans"):
         preset("fast", overrides)
 
 

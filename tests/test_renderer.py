@@ -1,5 +1,5 @@
 """renderer.py: sampling + field evaluation + compositing, against a naive float64 loop; early
-stopping; NeRF's hierarchical (coarse + fine) sampling."""
+stopping (queries, and training's min_trans); NeRF's hierarchical (coarse + fine) sampling."""
 
 from types import SimpleNamespace
 
@@ -236,6 +236,78 @@ def test_early_stop_without_colour_and_with_no_samples():
     assert empty.n_evaluated == 0
     torch.testing.assert_close(empty.opacity, torch.zeros(5))
     torch.testing.assert_close(empty.class_log_probs.exp(), torch.full((5, N_CLASSES), 1 / N_CLASSES))
+
+
+class LearntSlab(SlabField):
+    """SlabField whose σ and head input are scaled by a parameter: a gradient to compare."""
+
+    def __init__(self, sigma: float):
+        super().__init__(sigma)
+        self.scale = torch.tensor(1.0, dtype=torch.float32, requires_grad=True)
+
+    def features(self, points):
+        sigmas, h, raw = super().features(points)
+        return sigmas * self.scale, h * self.scale, raw
+
+
+def test_training_stop_skips_samples_behind_opaque_and_keeps_answer_and_gradient():
+    """render_rays(min_trans > 0), as training marches: samples behind the point where a ray's
+    transmittance falls below min_trans are not evaluated; their weights sum to less than min_trans,
+    so the composite and the gradient move by less than that."""
+    o, d, t_min, t_max = rays()
+    marching, min_trans = Marching(0.02, 120), 1e-4
+    jitter = torch.rand(len(o), generator=torch.Generator().manual_seed(1))
+    outs, grads, calls = [], [], []
+    for stop in (0.0, min_trans):
+        field = LearntSlab(sigma=200.0)  # opaque within a few samples of x = 0.2
+        out = render_rays(field, every_cell, o, d, t_min, t_max, marching, jitter, min_trans=stop)
+        (out.rgb.sum() + out.depth.sum() + out.class_log_probs.exp()[:, 0].sum()).backward()
+        outs.append(out), grads.append(float(field.scale.grad)), calls.append(field.calls)
+    full, stopped = outs
+    assert stopped.n_evaluated == calls[1] < 0.85 * full.n_evaluated == 0.85 * calls[0]
+    assert len(stopped.sample_points) < stopped.n_evaluated  # a segment's samples past the stop are dropped
+    torch.testing.assert_close(stopped.opacity, full.opacity, rtol=0, atol=min_trans)
+    torch.testing.assert_close(stopped.rgb, full.rgb, rtol=0, atol=min_trans)
+    hit = full.opacity >= 0.5  # averages over the weights move by the dropped weight over the opacity
+    assert 0 < int(hit.sum()) < len(hit)
+    torch.testing.assert_close(stopped.class_log_probs.exp()[hit], full.class_log_probs.exp()[hit], rtol=0, atol=2 * min_trans)
+    span = float((t_max - t_min).max())
+    torch.testing.assert_close(stopped.depth[hit], full.depth[hit], rtol=0, atol=2 * min_trans * span)
+    # per ray, the dropped weights (< min_trans in all) move d(output)/d(scale) by at most about
+    # min_trans x (the optical depth at the stop, -ln min_trans ≈ 9, + 1) x the outputs' range (≤ 2)
+    assert 0 < abs(grads[1] - grads[0]) <= len(o) * 20 * min_trans
+
+
+def test_training_stop_evaluates_every_sample_of_a_ray_that_stays_clear():
+    """A haze never opaque: min_trans > 0 evaluates every occupied sample, in growing segments, and
+    composites exactly what render_rays without it does (also without colour, and with no sample)."""
+    o, d, t_min, t_max = rays()
+    marching = Marching(0.01, 240)  # long rays: several segments
+    for with_rgb in (True, False):
+        options = CompositeOptions(with_rgb=with_rgb)
+        full = render_rays(SlabField(sigma=0.0, haze=0.5), every_cell, o, d, t_min, t_max, marching, None, options)
+        clear = render_rays(SlabField(sigma=0.0, haze=0.5), every_cell, o, d, t_min, t_max, marching, None, options,
+                            min_trans=1e-4)
+        assert clear.n_evaluated == full.n_evaluated > 100 * len(o)
+        for name in ("rgb", "depth", "opacity", "class_log_probs"):
+            torch.testing.assert_close(getattr(clear, name), getattr(full, name), rtol=0, atol=1e-6)
+    empty = render_rays(SlabField(sigma=1.0), every_cell, o, d, t_max + 1, t_max, marching, min_trans=1e-4)
+    assert empty.n_evaluated == 0 and float(empty.opacity.max()) == 0.0
+
+
+def test_training_stop_finite_at_extreme_densities():
+    """From no slab (σ = 0) to one opaque within a millionth of a step (σ = 1e8), and thresholds from
+    1e-12 to 0.5: finite answers, within the threshold of the full composite's opacity."""
+    o, d, t_min, t_max = rays()
+    marching = Marching(0.02, 120)
+    for sigma in (0.0, 1e-8, 1e3, 1e8):
+        full = render_rays(SlabField(sigma=sigma), every_cell, o, d, t_min, t_max, marching)
+        for min_trans in (1e-12, 1e-4, 0.5):
+            out = render_rays(SlabField(sigma=sigma), every_cell, o, d, t_min, t_max, marching, min_trans=min_trans)
+            for name in ("rgb", "depth", "opacity", "class_log_probs"):
+                assert torch.isfinite(getattr(out, name)).all(), (sigma, min_trans, name)
+            torch.testing.assert_close(out.class_log_probs.exp().sum(-1), torch.ones(len(o)), rtol=0, atol=1e-5)
+            torch.testing.assert_close(out.opacity, full.opacity, rtol=0, atol=max(min_trans, 1e-6))
 
 
 def test_hierarchical_fine_samples_approach_the_dense_composite_the_coarse_ones_miss():

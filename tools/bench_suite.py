@@ -61,6 +61,7 @@ VARIANTS: dict[str, dict] = {
     "margin-0.05": {"train": {"free_margin": 0.05}},  # the free-space margin layout depth had before
     "depth-bg-scene": {"train": {"depth_background": "scene"}},  # rays with depth on the white background, as before
     "depth-bg-random": {"train": {"depth_background": "random"}},  # a random colour behind them, whatever the cameras
+    "no-train-stop": {"sampling": {"train_min_trans": 0.0}},  # training evaluates every sample in an occupied cell
     # the room written with depth as a phone gives it (scenelabel.data.synthetic.add_phone_depth:
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
     "phone-depth": {"capture": "phone-depth"},
@@ -94,6 +95,7 @@ NOTES: dict[str, str] = {
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
     "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; \"auto\", the default, gives cameras that all look one way \"random\": a random colour behind them)",
     "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where the training cameras all look one way, and \"scene\", the white background, to cameras all around)",
+    "no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4: a ray's samples stop being evaluated once its transmittance is below that)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)

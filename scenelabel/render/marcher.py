@@ -133,6 +133,8 @@ def render_rays(
     marching: Marching,
     jitter: torch.Tensor | None = None,
     options: CompositeOptions = NO_OPTIONS,
+    *,
+    min_trans: float = 0.0,
 ) -> RayBundleOutput:
     """March rays from t_min to t_max and composite the field's outputs.
 
@@ -147,10 +149,15 @@ def render_rays(
         marching: the step (uniform spacing) and samples per ray.
         jitter: [n_rays] in [0, 1) (training) or None.
         options: background, colour or not, detached class weights (:class:`CompositeOptions`).
+        min_trans: 0 evaluates every sample in an occupied cell; above 0, a ray's samples behind
+            the point where its transmittance falls below ``min_trans`` are not evaluated
+            (:func:`_evaluate_until_opaque`: nerfacc's ``early_stop_eps`` in training). Their
+            weights sum to less than ``min_trans``, so the composite moves by less than that
+            times its range, and no gradient is lost but theirs (T < ``min_trans`` scales it).
     The class composite follows ``field.config.semantic_rendering``: "probs" (eq. 7) or
     "scores" (softmax after compositing).
     Returns:
-        RayBundleOutput.
+        RayBundleOutput; ``n_evaluated`` counts the samples the field's trunk evaluated.
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, jitter)  # [n_rays, S]
@@ -161,9 +168,17 @@ def render_rays(
     keep = occupancy(points).nonzero().squeeze(1)  # [k]
     rows, cols = rows.index_select(0, keep), cols.index_select(0, keep)
     points = points.index_select(0, keep)
-    samples = _evaluate(field, points, directions.index_select(0, rows), options.with_rgb)
+    n_evaluated = len(rows)
+    if min_trans > 0:
+        deltas = _take(t_ends, rows, cols) - _take(t_starts, rows, cols)
+        live, samples, n_evaluated = _evaluate_until_opaque(
+            field, (rows, points, deltas), directions, options.with_rgb, min_trans
+        )
+        rows, cols, points = rows.index_select(0, live), cols.index_select(0, live), points.index_select(0, live)
+    else:
+        samples = _evaluate(field, points, directions.index_select(0, rows), options.with_rgb)
     out = _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
-    return replace(out, sample_points=points, sample_sigmas=samples[0].detach())
+    return replace(out, n_evaluated=n_evaluated, sample_points=points, sample_sigmas=samples[0].detach())
 
 
 def render_rays_early_stop(
@@ -301,6 +316,59 @@ def _render_intervals(field, origins, directions, intervals, limits, options):
     samples = _evaluate(field, points[rows, cols], directions[rows], options.with_rgb)
     out = _composite(field, (rows, cols), intervals, samples, limits, options)
     return out, t_starts.new_zeros(t_starts.shape).index_put((rows, cols), samples[0].to(t_starts.dtype))
+
+
+def _evaluate_until_opaque(field, samples, directions: torch.Tensor, with_rgb: bool, min_trans: float):
+    """Evaluate each ray's samples in order until its transmittance falls below ``min_trans``.
+
+    The trunk (σ, ``field.features``) runs on the samples of rank [start, start + size) within their
+    ray, for the rays still at T ≥ ``min_trans``, with gradients; the segments grow (size =
+    max(EARLY_STOP_SEGMENT, start / 2)), so a long ray costs a few calls and a ray stopping at rank
+    r evaluates at most about r / 2 samples past it. A sample is kept (*live*) when the
+    transmittance in front of it, T = exp(-Σ σ_j δ_j) over the ray's earlier samples (from the
+    detached σ, in float64), is at least ``min_trans``; the heads run on the live samples only.
+
+    Args:
+        samples: (rows [k], points [k, 3], deltas [k]) the occupied samples, row-major (each ray's
+            in order), with their interval lengths.
+        directions: [n_rays, 3] the rays' unit directions.
+    Returns:
+        (live [k'] indices into the samples, in order; (sigmas, rgbs or None, class_logits) at
+        them; how many samples the trunk evaluated).
+    """
+    rows, points, deltas = samples
+    n_rays = directions.shape[0]
+    counts = torch.bincount(rows, minlength=n_rays)
+    rank = torch.arange(len(rows), device=rows.device) - (torch.cumsum(counts, 0) - counts).index_select(0, rows)
+    optical = torch.zeros(n_rays, dtype=torch.float64, device=rows.device)  # Σ σ δ so far, per ray
+    max_optical = -math.log(min_trans)
+    parts, n_evaluated, start = [], 0, 0
+    longest = int(counts.max()) if counts.numel() else 0
+    while start < longest:
+        size = max(EARLY_STOP_SEGMENT, start // 2)
+        in_segment = (rank >= start) & (rank < start + size)
+        sel = (in_segment & (optical.index_select(0, rows) < max_optical)).nonzero().squeeze(1)  # row-major
+        start += size
+        if sel.numel() == 0:
+            continue
+        sigmas, h, raw = field.features(points.index_select(0, sel))
+        n_evaluated += len(sel)
+        taus = sigmas.detach().double() * deltas.index_select(0, sel).double()
+        sel_rows = rows.index_select(0, sel)
+        # Σ σ δ in front of each sample: the ray's total so far + its samples before it in this segment
+        cum = taus.cumsum(0) - taus
+        group_first = torch.arange(len(sel), device=sel.device) - (rank.index_select(0, sel) - (start - size))
+        before = optical.index_select(0, sel_rows) + cum - cum.index_select(0, group_first)
+        live = (before < max_optical).nonzero().squeeze(1)
+        parts.append((sel.index_select(0, live), sigmas.index_select(0, live), h.index_select(0, live), raw.index_select(0, live)))
+        optical.index_add_(0, sel_rows, taus)
+    if not parts:  # no sample at all: an empty evaluation keeps the shapes right
+        return rows[:0], _evaluate(field, points[:0], directions[:0], with_rgb), n_evaluated
+    live, sigmas, h, raw = (torch.cat(p) for p in zip(*parts))
+    order = torch.argsort(live)  # row-major, as the composite wants them
+    live, sigmas, h, raw = live[order], sigmas[order], h[order], raw[order]
+    rgbs, logits = field.heads(h, raw, directions.index_select(0, rows.index_select(0, live)) if with_rgb else None)
+    return live, (sigmas, rgbs, logits), n_evaluated
 
 
 def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):

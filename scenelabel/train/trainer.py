@@ -220,11 +220,13 @@ class TrainingRender(nn.Module):
         marching: Marching,
         coarse: FieldNetwork | None = None,
         hierarchical: tuple[int, int] = (64, 128),
+        min_trans: float = 0.0,
     ):
         super().__init__()
         self.model = model
         self.grid = grid
         self.marching = marching
+        self.min_trans = min_trans  # render_rays': a ray stops being evaluated below this transmittance
         self.coarse = coarse
         self.hierarchical = hierarchical
 
@@ -243,7 +245,10 @@ class TrainingRender(nn.Module):
         points ``t_opaque + solid_offsets`` of the rays that became opaque inside the box, or None)."""
         coarse_out = None
         if self.coarse is None:
-            out = render_rays(self.model, self.grid, origins, directions, t_min, t_max, self.marching, jitter, options)
+            out = render_rays(
+                self.model, self.grid, origins, directions, t_min, t_max, self.marching, jitter, options,
+                min_trans=self.min_trans,
+            )
         else:
             out, coarse_out = render_rays_hierarchical(
                 self.coarse, self.model, origins, directions, t_min, t_max, self.hierarchical, (jitter, fine_jitter), options
@@ -302,7 +307,9 @@ class Trainer:
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
-        self.render = TrainingRender(self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine))
+        self.render = TrainingRender(
+            self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
+        )
         self.batch_rays = -(-tc.batch_rays // dist.world_size)  # rays per rank and step
         if dist.distributed:
             self.render = nn.parallel.DistributedDataParallel(
