@@ -278,6 +278,25 @@ def test_the_carve_border_is_handed_back_to_the_field_at_depth_carve_until(scene
     assert torch.equal(trainer.grid.carved, inner)
 
 
+def test_training_stops_marching_rays_behind_the_surfaces_it_has_made_opaque(scene):
+    """``sampling.train_min_trans``: from the same start, once surfaces are opaque (the depth terms
+    make them so within 300 steps; no carving, which would skip the space behind them too) the
+    training render evaluates fewer samples per ray than with every occupied sample (0), and
+    trains as well."""
+    loaded = _with_sensor_depth(load_scene(scene))
+    logs = {}
+    for min_trans in (0.0, 1e-4):
+        overrides = {"train": {"steps": 300}, "sampling": {"train_min_trans": min_trans, "depth_carve": False}}
+        trainer, _, _ = prepare_training(loaded, preset("quick", overrides), torch.device("cpu"))
+        assert trainer.render.min_trans == min_trans
+        logs[min_trans] = [trainer.train_step() for _ in range(300)]
+    last = {k: v[-30:] for k, v in logs.items()}
+    samples = {k: np.mean([log["samples_per_ray"] for log in v]) for k, v in last.items()}
+    psnr = {k: np.mean([log["psnr"] for log in v]) for k, v in last.items()}
+    assert samples[1e-4] < 0.8 * samples[0.0], samples
+    assert psnr[1e-4] > psnr[0.0] - 1.0, psnr
+
+
 def test_depth_ray_end_ends_measured_rays_just_past_their_depth(scene):
     loaded = _with_sensor_depth(load_scene(scene))
     full, _, _ = prepare_training(loaded, preset("quick", {"sampling": {"depth_carve": True, "depth_ray_end": 0.0}}), torch.device("cpu"))

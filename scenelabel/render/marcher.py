@@ -149,15 +149,17 @@ def render_rays(
         marching: the step (uniform spacing) and samples per ray.
         jitter: [n_rays] in [0, 1) (training) or None.
         options: background, colour or not, detached class weights (:class:`CompositeOptions`).
-        min_trans: 0 evaluates every sample in an occupied cell; above 0, a ray's samples behind
-            the point where its transmittance falls below ``min_trans`` are not evaluated
-            (:func:`_evaluate_until_opaque`: nerfacc's ``early_stop_eps`` in training). Their
-            weights sum to less than ``min_trans``, so the composite moves by less than that
-            times its range, and no gradient is lost but theirs (T < ``min_trans`` scales it).
+        min_trans: 0 evaluates every sample in an occupied cell; above 0, a pass without
+            gradients finds each ray's samples behind the point where its transmittance falls
+            below ``min_trans`` (:func:`_samples_before_opaque`, from the density alone), and only
+            those in front are evaluated and composited (nerfacc's ``early_stop_eps`` in
+            training). The dropped weights sum to less than ``min_trans``, so the composite moves by
+            less than that times its range, and so does the gradient (T < ``min_trans`` scales it).
     The class composite follows ``field.config.semantic_rendering``: "probs" (eq. 7) or
     "scores" (softmax after compositing).
     Returns:
-        RayBundleOutput; ``n_evaluated`` counts the samples the field's trunk evaluated.
+        RayBundleOutput; ``n_evaluated`` counts the samples whose density was evaluated (with
+        ``min_trans``: in the pass without gradients; the field then runs again on those kept).
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, jitter)  # [n_rays, S]
@@ -171,12 +173,9 @@ def render_rays(
     n_evaluated = len(rows)
     if min_trans > 0:
         deltas = _take(t_ends, rows, cols) - _take(t_starts, rows, cols)
-        live, samples, n_evaluated = _evaluate_until_opaque(
-            field, (rows, points, deltas), directions, options.with_rgb, min_trans
-        )
-        rows, cols, points = rows.index_select(0, live), cols.index_select(0, live), points.index_select(0, live)
-    else:
-        samples = _evaluate(field, points, directions.index_select(0, rows), options.with_rgb)
+        kept, n_evaluated = _samples_before_opaque(field, (rows, points, deltas), len(origins), min_trans)
+        rows, cols, points = rows.index_select(0, kept), cols.index_select(0, kept), points.index_select(0, kept)
+    samples = _evaluate(field, points, directions.index_select(0, rows), options.with_rgb)
     out = _composite(field, (rows, cols), (t_starts, t_ends), samples, (t_min, t_max), options)
     return replace(out, n_evaluated=n_evaluated, sample_points=points, sample_sigmas=samples[0].detach())
 
@@ -318,57 +317,50 @@ def _render_intervals(field, origins, directions, intervals, limits, options):
     return out, t_starts.new_zeros(t_starts.shape).index_put((rows, cols), samples[0].to(t_starts.dtype))
 
 
-def _evaluate_until_opaque(field, samples, directions: torch.Tensor, with_rgb: bool, min_trans: float):
-    """Evaluate each ray's samples in order until its transmittance falls below ``min_trans``.
+@torch.no_grad()
+def _samples_before_opaque(field, samples, n_rays: int, min_trans: float) -> tuple[torch.Tensor, int]:
+    """Which of each ray's samples lie in front of the point where its transmittance falls below
+    ``min_trans``: found from the trunk's density alone, without gradients.
 
-    The trunk (σ, ``field.features``) runs on the samples of rank [start, start + size) within their
-    ray, for the rays still at T ≥ ``min_trans``, with gradients; the segments grow (size =
-    max(EARLY_STOP_SEGMENT, start / 2)), so a long ray costs a few calls and a ray stopping at rank
-    r evaluates at most about r / 2 samples past it. A sample is kept (*live*) when the
-    transmittance in front of it, T = exp(-Σ σ_j δ_j) over the ray's earlier samples (from the
-    detached σ, in float64), is at least ``min_trans``; the heads run on the live samples only.
+    The density (``field.density``) is evaluated on the samples of rank
+    [start, start + size) within their ray, for the rays still at T ≥ ``min_trans``; the segments
+    double (size = max(EARLY_STOP_SEGMENT, start)), so a long ray costs a few calls and a ray
+    stopping at rank r evaluates at most about r samples past it. A sample is kept when the
+    transmittance in front of it, T = exp(-Σ σ_j δ_j) over the ray's earlier samples (float64), is
+    at least ``min_trans``.
 
     Args:
         samples: (rows [k], points [k, 3], deltas [k]) the occupied samples, row-major (each ray's
             in order), with their interval lengths.
-        directions: [n_rays, 3] the rays' unit directions.
     Returns:
-        (live [k'] indices into the samples, in order; (sigmas, rgbs or None, class_logits) at
-        them; how many samples the trunk evaluated).
+        (kept [k'] indices into the samples, in order; how many samples the trunk evaluated).
     """
     rows, points, deltas = samples
-    n_rays = directions.shape[0]
     counts = torch.bincount(rows, minlength=n_rays)
     rank = torch.arange(len(rows), device=rows.device) - (torch.cumsum(counts, 0) - counts).index_select(0, rows)
     optical = torch.zeros(n_rays, dtype=torch.float64, device=rows.device)  # Σ σ δ so far, per ray
     max_optical = -math.log(min_trans)
-    parts, n_evaluated, start = [], 0, 0
+    kept, n_evaluated, start = [], 0, 0
     longest = int(counts.max()) if counts.numel() else 0
     while start < longest:
-        size = max(EARLY_STOP_SEGMENT, start // 2)
+        size = max(EARLY_STOP_SEGMENT, start)
         in_segment = (rank >= start) & (rank < start + size)
         sel = (in_segment & (optical.index_select(0, rows) < max_optical)).nonzero().squeeze(1)  # row-major
+        if sel.numel() > 0:
+            taus = field.density(points.index_select(0, sel)).double()
+            taus = taus * deltas.index_select(0, sel).double()  # σ δ
+            n_evaluated += len(sel)
+            sel_rows = rows.index_select(0, sel)
+            # Σ σ δ in front of each sample: the ray's total so far + its samples before it in this segment
+            cum = taus.cumsum(0) - taus
+            group_first = torch.arange(len(sel), device=sel.device) - (rank.index_select(0, sel) - start)
+            before = optical.index_select(0, sel_rows) + cum - cum.index_select(0, group_first)
+            kept.append(sel[before < max_optical])
+            optical.index_add_(0, sel_rows, taus)
         start += size
-        if sel.numel() == 0:
-            continue
-        sigmas, h, raw = field.features(points.index_select(0, sel))
-        n_evaluated += len(sel)
-        taus = sigmas.detach().double() * deltas.index_select(0, sel).double()
-        sel_rows = rows.index_select(0, sel)
-        # Σ σ δ in front of each sample: the ray's total so far + its samples before it in this segment
-        cum = taus.cumsum(0) - taus
-        group_first = torch.arange(len(sel), device=sel.device) - (rank.index_select(0, sel) - (start - size))
-        before = optical.index_select(0, sel_rows) + cum - cum.index_select(0, group_first)
-        live = (before < max_optical).nonzero().squeeze(1)
-        parts.append((sel.index_select(0, live), sigmas.index_select(0, live), h.index_select(0, live), raw.index_select(0, live)))
-        optical.index_add_(0, sel_rows, taus)
-    if not parts:  # no sample at all: an empty evaluation keeps the shapes right
-        return rows[:0], _evaluate(field, points[:0], directions[:0], with_rgb), n_evaluated
-    live, sigmas, h, raw = (torch.cat(p) for p in zip(*parts))
-    order = torch.argsort(live)  # row-major, as the composite wants them
-    live, sigmas, h, raw = live[order], sigmas[order], h[order], raw[order]
-    rgbs, logits = field.heads(h, raw, directions.index_select(0, rows.index_select(0, live)) if with_rgb else None)
-    return live, (sigmas, rgbs, logits), n_evaluated
+    if not kept:
+        return rows[:0], n_evaluated
+    return torch.sort(torch.cat(kept)).values, n_evaluated
 
 
 def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
