@@ -80,6 +80,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
     "phone-depth-no-fill": {"capture": "phone-depth", "data": {"layout_depth": False}},
     "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
+    "phone-depth-no-train-stop": {"capture": "phone-depth", "sampling": {"train_min_trans": 0.0}},
     "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 1.0, "depth_ray_end": 2.0}},
 }
 # what a variant without depth changes, for the document's text (only the variants a run has)
@@ -116,6 +117,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
+    "phone-depth-no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
 }
 # the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
@@ -474,8 +476,10 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         "(`scenelabel.metrics`): depth error is the median of |depth - true| / true over held-out pixel",
         "rays (`query_rays`); surface labels are of points 2 cm behind the true surface along those",
         "rays, free labels of points at least 0.1 m in front of it; P / R / F: the 0.05 m map's",
-        "occupied voxel centres against the surfaces the views see. Samples per ray: the mean of the",
-        "last logged training steps. Box / true volume: the modelled box against the rooms' true bounds.",
+        "occupied voxel centres against the surfaces the views see. Samples per ray: the samples whose",
+        "density a training step evaluated per ray (with `sampling.train_min_trans`, in its pass without",
+        "gradients), the mean of the last logged steps. Box / true volume: the modelled box against the",
+        "rooms' true bounds.",
         "Thinly seen: the share of the observed geometry (the build's coarse fit) inside fewer than 3",
         "training views' images; distortion: the weight of the distortion term the build trained with",
         f"(`train.distortion_weight` \"auto\" turns it on where at most {DISTORTION_THIN_MAX:.0%} is thinly seen; variant",
