@@ -92,6 +92,9 @@ VARIANTS: dict[str, dict] = {
     # the same build with another training seed (`train.seed`, default 0: initial weights, rays drawn)
     "seed-1": {"train": {"seed": 1}},
     "seed-2": {"train": {"seed": 2}},
+    "no-train-stop": {"sampling": {"train_min_trans": 0.0}},  # training marches every occupied sample
+    "no-train-stop-seed-1": {"sampling": {"train_min_trans": 0.0}, "train": {"seed": 1}},
+    "no-train-stop-seed-2": {"sampling": {"train_min_trans": 0.0}, "train": {"seed": 2}},
 }
 
 
