@@ -336,8 +336,7 @@ def _samples_before_opaque(field, samples, n_rays: int, min_trans: float) -> tup
         (kept [k'] indices into the samples, in order; how many samples the trunk evaluated).
     """
     rows, points, deltas = samples
-    counts = torch.bincount(rows, minlength=n_rays)
-    rank = torch.arange(len(rows), device=rows.device) - (torch.cumsum(counts, 0) - counts).index_select(0, rows)
+    counts, rank = _ranks_in_rays(rows, n_rays)
     optical = torch.zeros(n_rays, dtype=torch.float64, device=rows.device)  # Σ σ δ so far, per ray
     max_optical = -math.log(min_trans)
     kept, n_evaluated, start = [], 0, 0
@@ -361,6 +360,14 @@ def _samples_before_opaque(field, samples, n_rays: int, min_trans: float) -> tup
     if not kept:
         return rows[:0], n_evaluated
     return torch.sort(torch.cat(kept)).values, n_evaluated
+
+
+def _ranks_in_rays(rows: torch.Tensor, n_rays: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """For samples ordered row-major by their ray ``rows`` [n]: each ray's sample count [n_rays] and
+    each sample's place among its ray's samples [n] (0 for the first)."""
+    counts = torch.bincount(rows, minlength=n_rays)
+    first = torch.cumsum(counts, 0) - counts  # where each ray's samples begin in ``rows``
+    return counts, torch.arange(len(rows), device=rows.device) - first.index_select(0, rows)
 
 
 def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
@@ -424,10 +431,9 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
     rows, cols = at
     (t_starts, t_ends), (sigmas, rgbs, class_logits), (t_min, t_max) = intervals, samples, limits
     n_rays = t_starts.shape[0]
-    counts = torch.bincount(rows, minlength=n_rays)  # [n_rays]
+    counts, rank = _ranks_in_rays(rows, n_rays)
     K = max(int(counts.max()) if counts.numel() else 0, 1)
-    first = torch.cumsum(counts, 0) - counts  # where each ray's samples begin in ``rows``
-    packed = rows * K + torch.arange(len(rows), device=rows.device) - first.index_select(0, rows)  # [n] in [n_rays * K]
+    packed = rows * K + rank  # [n] in [n_rays * K]
     dtype = t_starts.dtype
     starts = _padded(_take(t_starts, rows, cols), packed, (n_rays, K), dtype)
     ends = _padded(_take(t_ends, rows, cols), packed, (n_rays, K), dtype)
