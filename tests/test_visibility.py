@@ -12,8 +12,11 @@ from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras, cameras_from_dict, cameras_to_dict, opengl_to_opencv
 from scenelabel.geometry.rays import camera_directions_from_pixels, rays_from_cameras
 from scenelabel.maps.visibility import (
+    SQRT3,
+    back_depth,
     camera_surfaces,
     front_depth,
+    max_depth_over_neighbours,
     min_depth_over_neighbours,
     observed_voxels,
     project_points,
@@ -195,22 +198,24 @@ def test_distorted_pinholes_match_naive_loop_across_threads():
     assert 0.05 < fast.mean() < 0.95
 
 
-def _front_depth_naive(depth: np.ndarray) -> np.ndarray:
-    """Rule 5 of docs/conventions.md "Observed space", pixel by pixel in float64."""
+def _edge_depths_naive(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rules 4 and 5 of docs/conventions.md "Observed space", pixel by pixel in float64: each
+    pixel's back depth (occupied voxels) and front depth (transparent ones)."""
     h, w = depth.shape
-    out = np.empty((h, w))
+    front, back = np.empty((h, w)), np.empty((h, w))
     for r in range(h):
         for c in range(w):
             def at(rr, cc):
                 return depth[min(max(rr, 0), h - 1), min(max(cc, 0), w - 1)]
-            low = min(at(r + i, c + j) for i in (-1, 0, 1) for j in (-1, 0, 1))
+            around = [at(r + i, c + j) for i in (-1, 0, 1) for j in (-1, 0, 1)]
             d = depth[r, c]
             smooth = np.isfinite(d)
             for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-                bend = at(r + dr, c + dc) + at(r - dr, c - dc) - 2 * d
-                smooth = smooth and np.isfinite(bend) and abs(bend) <= 0.1 * d
-            out[r, c] = 0.5 * (d + low) if smooth else low
-    return out
+                a, b = at(r + dr, c + dc), at(r - dr, c - dc)
+                smooth = smooth and np.isfinite(a) and np.isfinite(b) and abs(a + b - 2 * d) <= 0.1 * d
+            front[r, c] = 0.5 * (d + min(around)) if smooth else min(around)
+            back[r, c] = 0.5 * (d + max(around)) if smooth else d
+    return front, back
 
 
 def test_seen_before_bounds_hand_built():
@@ -266,7 +271,7 @@ def test_front_depth_on_a_grazing_floor_a_silhouette_and_the_sky():
     depth[:2] = np.inf  # above the horizon: nothing
     depth[6:9, 3:6] = 1.0  # a box much nearer than the floor behind it
     front, low = front_depth(depth), min_depth_over_neighbours(depth)
-    np.testing.assert_allclose(front, _front_depth_naive(depth), rtol=1e-12)
+    np.testing.assert_allclose(front, _edge_depths_naive(depth)[0], rtol=1e-12)
     assert np.all(front >= low) and np.all(front <= depth)
     floor = np.zeros_like(depth, bool)
     floor[3:11, 8:] = True  # away from the box and the sky; not the nearest row (its own depth is the smallest)
@@ -274,6 +279,39 @@ def test_front_depth_on_a_grazing_floor_a_silhouette_and_the_sky():
     assert np.all(front[floor] > low[floor]) and np.all(front[floor] < depth[floor])
     np.testing.assert_array_equal(front[5:10, 2:7], low[5:10, 2:7])  # the box and the floor around its silhouette
     np.testing.assert_array_equal(front[:3], low[:3])  # the sky and the row beside it
+
+
+def test_back_depth_on_a_grazing_floor_a_silhouette_and_the_sky():
+    """The same floor: the mean of a pixel's own depth and its neighbours' largest, farther than
+    its own and nearer than the largest; the box, the floor around its silhouette and the rows
+    that see nothing or border them: the pixel's own depth; against a naive loop."""
+    rows = np.arange(12, dtype=np.float64)
+    depth = np.repeat((1.4 / np.sin(np.radians(20.0 - 0.75 * rows)))[:, None], 10, axis=1)[::-1].copy()
+    depth[:2] = np.inf
+    depth[6:9, 3:6] = 1.0
+    back, high = back_depth(depth), max_depth_over_neighbours(depth)
+    np.testing.assert_allclose(back, _edge_depths_naive(depth)[1], rtol=1e-12)
+    assert np.all(back >= depth) and np.all(back <= high)
+    floor = np.zeros_like(depth, bool)
+    floor[3:11, 8:] = True  # away from the box and the sky; not the farthest row of the floor
+    assert np.all(back[floor] > depth[floor]) and np.all(back[floor] < high[floor])
+    np.testing.assert_array_equal(back[5:10, 2:7], depth[5:10, 2:7])
+    np.testing.assert_array_equal(back[:3], depth[:3])
+    assert np.isfinite(back[2:]).all() and np.isinf(back[:2]).all()
+
+
+def test_max_depth_over_neighbours():
+    depth = np.full((5, 6), 1.0)
+    depth[2, 3] = 2.0
+    depth[4, 5] = np.inf
+    out = max_depth_over_neighbours(depth)
+    expected = np.full((5, 6), 1.0)
+    expected[1:4, 2:5] = 2.0
+    expected[3:5, 4:6] = np.inf
+    np.testing.assert_array_equal(out, expected)
+    np.testing.assert_array_equal(max_depth_over_neighbours(depth, size=1), depth)
+    with pytest.raises(InputError, match="size"):
+        max_depth_over_neighbours(depth, size=4)
 
 
 def test_min_depth_over_neighbours():
@@ -354,6 +392,32 @@ def test_observed_voxels_foggy_wall_is_a_surface():
     assert occupied[6, 2:8, 2:8].all()  # the rays cross T = 0.5 in the second layer
     assert observed[:4].all() and observed[6][occupied[6]].all()
     assert not observed[8:].any()
+
+
+def test_observed_voxels_floor_at_a_grazing_angle():
+    """A floor two voxels thick seen across 6 m from 1.4 m above it by a camera the size of a
+    map's depth maps (80 x 60): far away a pixel's depth grows by tens of centimetres from one row
+    to the next. Against each pixel's own depth the floor's top voxels whose centre falls in the
+    far half of their pixel were unobserved; against its back depth every one in the camera's
+    view is observed, and the layer beneath stays hidden (within 5 m; beyond, the margin reaches
+    it where a coarse pixel spans a metre of floor)."""
+    voxel = 0.1
+    occupied = np.zeros((80, 60, 3), bool)
+    occupied[:, :, :2] = True  # its top at z = 0.2
+    origin = np.array([0.05, 0.05, 0.05])
+    cams = Cameras.create(cv_look_at((-0.5, 3.0, 1.4), (4.0, 3.0, 0.6)), fx=64.0, fy=64.0, cx=40.0, cy=30.0, width=80, height=60)
+    observed, occ = observed_voxels(occupied, origin, voxel, cams)
+    np.testing.assert_array_equal(occ, occupied)
+    top = np.zeros_like(occupied)
+    top[:60, 20:40, 1] = True  # the top layer ahead of the camera
+    centres = origin + voxel * np.argwhere(top)
+    in_view = visible_from_cameras(centres, cams, [np.full((60, 80), np.inf)], 0.0)
+    assert in_view.sum() > 500
+    np.testing.assert_array_equal(observed[top], in_view)
+    surfaces = camera_surfaces(occupied, origin, voxel, cams)
+    own = visible_from_cameras(centres, cams, surfaces.depth, SQRT3 * voxel)
+    assert own.sum() < in_view.sum() - 50  # the pixel's own depth missed the far floor
+    assert not observed[:50, :, 0].any()
 
 
 def test_input_errors():

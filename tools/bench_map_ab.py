@@ -3,8 +3,9 @@
     .venv/bin/python tools/bench_map_ab.py --base HEAD                      # docs/map_ab.md and .json
     .venv/bin/python tools/bench_map_ab.py --base HEAD~2 --scenes office-5x4 --out /tmp/ab.md
 
-Suite rooms (scenelabel.data.suite) are built once with the working tree's code (the ``fast``
-preset, STEPS steps: a fixed step count, so the machine's load does not change the build), then
+Suite rooms (scenelabel.data.suite) are built once with the working tree's code (the default
+preset, ``auto``, with STEPS steps: a fixed step count, so the machine's load does not change the
+build), then
 each build's ``occupancy_map(0.05)`` is made and scored by the code of ``--base`` (a git worktree,
 put first on ``PYTHONPATH``) and by the working tree, each in a fresh process: the map's time
 (the faster of REPEATS calls after a warm-up), and against the room's exact geometry, as
@@ -90,17 +91,21 @@ print(json.dumps({{
 '''
 
 
-def build_room(name: str, workdir: Path) -> tuple[Path, Path, bool]:
-    """(scene folder, build folder, tuning room?) of suite room ``name``, built with STEPS steps."""
+def build_room(name: str, workdir: Path) -> tuple[Path, Path, str]:
+    """(scene folder, build folder, set) of suite room ``name``, built with STEPS steps; set: "tuning",
+    "held out" (out of every tuning decision) or "pool" (scenelabel.data.suite.LAYOUT_POOL's
+    forward-facing rooms, which no suite run holds)."""
     from scenelabel import build, preset
-    from scenelabel.data.suite import suite_spec, write_suite_scene
+    from scenelabel.config import AUTO_PRESET
+    from scenelabel.data.suite import LAYOUT_POOL, suite_spec, write_suite_scene
 
     room = suite_spec(name)
     scene_dir = write_suite_scene(workdir / room.name, room)
-    config = preset("fast", {"train": {"steps": STEPS, "time_budget": 1e9},
+    config = preset(AUTO_PRESET, {"train": {"steps": STEPS, "time_budget": 1e9},
                              "output": {"write_map": False, "write_renders": False}})
     build(scene_dir, workdir / f"{room.name}_build", config, progress=False)
-    return scene_dir, workdir / f"{room.name}_build", room.tuning
+    room_set = "pool" if room in LAYOUT_POOL else "tuning" if room.tuning else "held out"
+    return scene_dir, workdir / f"{room.name}_build", room_set
 
 
 def measure(code_root: Path, scene: str, scene_dir: Path, build_dir: Path) -> dict:
@@ -146,7 +151,7 @@ def write_markdown(r: dict, path: Path, command: str) -> None:
     lines = [
         "# Query code A/B on the same builds: maps and renders",
         "",
-        f"{generated_by(command)} Each room built once ({STEPS} steps, the `fast` "
+        f"{generated_by(command)} Each room built once ({STEPS} steps, the default "
         f"preset); its `occupancy_map(0.05)` made by the code of **{r['base']}** (base) and of **{r['new']}** "
         f"(new), each in a fresh process; map time: the faster of {REPEATS} calls. Metrics as tools/bench_suite.py "
         "computes them, against the room's exact geometry. Render: the median over the held-out views "
@@ -159,7 +164,7 @@ def write_markdown(r: dict, path: Path, command: str) -> None:
     for row in r["rows"]:
         b, n = row["base"], row["new"]
         lines.append(
-            f"| {row['scene']} | {'tuning' if row['tuning'] else 'held out'} | {b['map_seconds']:.1f} → "
+            f"| {row['scene']} | {row['set']} | {b['map_seconds']:.1f} → "
             f"{n['map_seconds']:.1f} s ({b['map_seconds'] / n['map_seconds']:.2f}x) "
             f"| {100 * b['surface_map']:.1f} → {100 * n['surface_map']:.1f} % "
             f"| {100 * b['free_map']:.2f} → {100 * n['free_map']:.2f} % "
@@ -188,8 +193,8 @@ def main() -> None:
         with base_worktree(args.base, work / "base") as base_tree:
             for scene in args.scenes:
                 print(f"{scene}: building ...", flush=True)
-                scene_dir, build_dir, tuning = build_room(scene, work)
-                row = {"scene": scene, "tuning": tuning,
+                scene_dir, build_dir, room_set = build_room(scene, work)
+                row = {"scene": scene, "set": room_set,
                        "base": measure(base_tree, scene, scene_dir, build_dir),
                        "new": measure(REPO, scene, scene_dir, build_dir)}
                 print(f"  {row}", flush=True)

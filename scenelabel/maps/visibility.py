@@ -28,11 +28,12 @@ For a map, the surfaces are the map's own: :func:`camera_surfaces` casts each (s
 transmittance falls to 0.5 (what a volume renderer draws there); the voxels those surfaces lie in
 are occupied besides the opaque ones (a field's surfaces are often a few voxels of fog, none
 opaque alone), and :func:`observed_voxels` applies the rule twice (docs/conventions.md,
-"Observed space"): an *occupied* voxel is observed with ``margin = SQRT3 * voxel_size`` and one
-pixel footprint (a surface voxel's centre may lie up to that far behind where the pixel ray
-meets the surface); a *transparent* voxel only when its centre is in front of the surface, with
-no margin, against :func:`front_depth` of each depth map (so a voxel just behind a silhouette or
-a surface is never taken for observed free space)::
+"Observed space"): an *occupied* voxel is observed against :func:`back_depth` of each depth map
+(on a smooth surface half a pixel's step past the pixel's own depth: the surface's far edge over
+the pixel) with ``margin = SQRT3 * voxel_size`` and one pixel footprint (a surface voxel's centre
+may lie up to that far behind where the surface is); a *transparent* voxel only when its centre
+is in front of the surface, with no margin, against :func:`front_depth` of each depth map (so a
+voxel just behind a silhouette or a surface is never taken for observed free space)::
 
     small = scaled_cameras(train_cameras, DEPTH_MAP_WIDTH)
     observed, occupied = observed_voxels(occupancy, origin, voxel_size, small)   # [nx, ny, nz] bool each
@@ -62,13 +63,16 @@ __all__ = [
     "PIXEL_MARGIN",
     "SQRT3",
     "camera_surfaces",
+    "back_depth",
     "front_depth",
+    "max_depth_over_neighbours",
     "min_depth_over_neighbours",
     "observed_centres",
     "observed_voxels",
     "project_points",
     "scaled_cameras",
     "seen_before_bounds",
+    "smooth_pixels",
     "surface_mask",
     "visible_from_cameras",
 ]
@@ -282,23 +286,29 @@ def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
 
 
-def front_depth(depth: np.ndarray) -> np.ndarray:
-    """Each pixel's depth that a voxel centre falling in it must lie in front of to be observed free
-    space (docs/conventions.md, "Observed space", rule 5): on a smooth surface (:data:`SMOOTH_BEND`)
-    the mean of its own depth and :func:`min_depth_over_neighbours` (the surface's nearest depth
-    over the pixel's footprint, about half a pixel's step nearer than its centre's); elsewhere
-    (silhouettes, creases, pixels that see nothing or border them) the smallest over the 3 x 3
-    pixels, so that space just behind a silhouette is never taken for free. The smallest alone
-    marks the voxels just above a floor seen at a grazing angle as unobserved: a coarse pixel's
-    step there exceeds the voxel's height over the floor.
+def max_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
+    """Each pixel's largest depth over the ``size`` x ``size`` pixels around it (edges repeated):
+    :func:`min_depth_over_neighbours`' counterpart (``inf`` = no surface, so a pixel beside one
+    that sees nothing gets ``inf``).
 
     Args:
         depth: [h, w] depth map (``inf`` = no surface).
+        size: window edge, pixels (odd, >= 1).
     Returns:
-        [h, w] float64, between :func:`min_depth_over_neighbours` and ``depth``.
+        [h, w] float64, never smaller than ``depth``.
     """
+    from scipy.ndimage import maximum_filter
+
+    if int(size) < 1 or int(size) % 2 == 0:
+        raise InputError(f"size must be an odd integer >= 1, got {size!r}", field="size")
+    return maximum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
+
+
+def smooth_pixels(depth: np.ndarray) -> np.ndarray:
+    """[h, w] bool: the pixels on a smooth surface, where for each pair of opposite neighbours
+    (a, b) around the pixel's finite depth d (edges repeated), |a + b - 2 d| <= SMOOTH_BEND x d.
+    Silhouettes, creases, pixels that see nothing (``inf``) and those bordering them are not."""
     depth = np.asarray(depth, dtype=np.float64)
-    low = min_depth_over_neighbours(depth)
     padded = np.pad(depth, 1, mode="edge")
     h, w = depth.shape
     smooth = np.isfinite(depth)
@@ -307,7 +317,47 @@ def front_depth(depth: np.ndarray) -> np.ndarray:
             a = padded[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
             b = padded[1 - dr : 1 - dr + h, 1 - dc : 1 - dc + w]
             smooth &= np.abs(a + b - 2.0 * depth) <= SMOOTH_BEND * depth
-    return np.where(smooth, 0.5 * (depth + low), low)
+    return smooth
+
+
+def front_depth(depth: np.ndarray) -> np.ndarray:
+    """Each pixel's depth that a voxel centre falling in it must lie in front of to be observed free
+    space (docs/conventions.md, "Observed space", rule 5): on a smooth surface
+    (:func:`smooth_pixels`) the mean of its own depth and :func:`min_depth_over_neighbours` (the
+    surface's nearest depth over the pixel's footprint, about half a pixel's step nearer than its
+    centre's); elsewhere (silhouettes, creases, pixels that see nothing or border them) the
+    smallest over the 3 x 3 pixels, so that space just behind a silhouette is never taken for free.
+    The smallest alone marks the voxels just above a floor seen at a grazing angle as unobserved: a
+    coarse pixel's step there exceeds the voxel's height over the floor.
+
+    Args:
+        depth: [h, w] depth map (``inf`` = no surface).
+    Returns:
+        [h, w] float64, between :func:`min_depth_over_neighbours` and ``depth``.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    low = min_depth_over_neighbours(depth)
+    return np.where(smooth_pixels(depth), 0.5 * (depth + low), low)
+
+
+def back_depth(depth: np.ndarray) -> np.ndarray:
+    """Each pixel's depth that an occupied voxel's centre falling in it is measured from
+    (docs/conventions.md, "Observed space", rule 4): on a smooth surface (:func:`smooth_pixels`)
+    the mean of its own depth and :func:`max_depth_over_neighbours` (the surface's farthest depth
+    over the pixel's footprint, about half a pixel's step farther than its centre's); elsewhere
+    (silhouettes, creases, pixels that see nothing or border them) its own depth, so that nothing
+    behind a silhouette is taken for seen. :func:`front_depth`'s counterpart: a surface seen at a
+    grazing angle (a floor or ceiling across the room, from a forward-facing rig) moves by tens of
+    centimetres over one coarse pixel, far more than a voxel, and with the pixel's own depth alone
+    the voxels holding that surface were unobserved wherever it lay in the far half of a pixel.
+
+    Args:
+        depth: [h, w] depth map (``inf`` = no surface).
+    Returns:
+        [h, w] float64, between ``depth`` and :func:`max_depth_over_neighbours`.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    return np.where(smooth_pixels(depth), 0.5 * (depth + max_depth_over_neighbours(depth)), depth)
 
 
 @dataclass(frozen=True)
@@ -320,6 +370,7 @@ class CameraSurfaces:
         depth: n arrays [h_i, w_i] float64: distance along each pixel's unit ray to its surface,
             ``inf`` where the ray meets none.
         front: n arrays [h_i, w_i]: :func:`front_depth` of ``depth``.
+        back: n arrays [h_i, w_i]: :func:`back_depth` of ``depth``.
         voxels: [S, 3] int64, the distinct grid voxels those surfaces lie in (surfaces from
             ``occluder_depth``, outside the grid, are not voxels of it).
     """
@@ -327,6 +378,7 @@ class CameraSurfaces:
     cameras: Cameras
     depth: list[np.ndarray]
     front: list[np.ndarray]
+    back: list[np.ndarray]
     voxels: np.ndarray
 
 
@@ -370,7 +422,7 @@ def camera_surfaces(
         voxels.append(index[index[:, 0] >= 0])
         depth.append(hit.reshape(int(cameras.height[i]), int(cameras.width[i])))
     voxels = np.unique(np.concatenate(voxels), axis=0) if voxels else np.zeros((0, 3), np.int64)
-    return CameraSurfaces(cameras, depth, [front_depth(d) for d in depth], voxels.reshape(-1, 3))
+    return CameraSurfaces(cameras, depth, [front_depth(d) for d in depth], [back_depth(d) for d in depth], voxels.reshape(-1, 3))
 
 
 def surface_mask(surfaces: CameraSurfaces, block: tuple[slice, slice, slice]) -> np.ndarray:
@@ -393,8 +445,9 @@ def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: C
     :func:`observed_voxels`, voxel by voxel, so any block of a grid at a time).
 
     An occupied voxel is observed when some camera sees its centre (:func:`visible_from_cameras`)
-    with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera
-    sees its centre in front of its pixel's :func:`front_depth` (``surfaces.front``, no margin).
+    against its pixel's :func:`back_depth` (``surfaces.back``) with ``margin = SQRT3 * voxel_size``
+    and one pixel footprint, a free voxel when some camera sees its centre in front of its pixel's
+    :func:`front_depth` (``surfaces.front``, no margin).
 
     Args:
         centres: [V, 3] world voxel centres.
@@ -409,7 +462,7 @@ def observed_centres(centres: Any, occupied: Any, voxel_size: float, surfaces: C
     if len(occ) != len(centres):
         raise InputError(f"{len(centres)} centres but {len(occ)} occupied flags", field="occupied")
     seen = np.empty(len(centres), dtype=bool)
-    seen[occ] = visible_from_cameras(centres[occ], surfaces.cameras, surfaces.depth, SQRT3 * voxel_size)
+    seen[occ] = visible_from_cameras(centres[occ], surfaces.cameras, surfaces.back, SQRT3 * voxel_size)
     seen[~occ] = visible_from_cameras(centres[~occ], surfaces.cameras, surfaces.front, 0.0, pixel_margin=0.0)
     return seen
 
@@ -429,9 +482,9 @@ def observed_voxels(
     grid's opacities (:func:`camera_surfaces`). A voxel is occupied when its opacity is at least
     :data:`scenelabel.maps.OCCUPIED_THRESHOLD` (code >= 128) or a camera's surface lies
     in it; then every voxel is classified (:func:`observed_centres`): an occupied voxel is
-    observed when some camera sees its centre (:func:`visible_from_cameras`) with
-    ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel when some camera sees
-    its centre in front of its pixel's :func:`front_depth` (no margin).
+    observed when some camera sees its centre (:func:`visible_from_cameras`) against its pixel's
+    :func:`back_depth` with ``margin = SQRT3 * voxel_size`` and one pixel footprint, a free voxel
+    when some camera sees its centre in front of its pixel's :func:`front_depth` (no margin).
 
     Args:
         occupancy: [nx, ny, nz] per-voxel opacity in [0, 1], its uint8 codes, or bool (opaque voxels).
