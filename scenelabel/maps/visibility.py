@@ -281,9 +281,7 @@ def min_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     """
     from scipy.ndimage import minimum_filter
 
-    if int(size) < 1 or int(size) % 2 == 0:
-        raise InputError(f"size must be an odd integer >= 1, got {size!r}", field="size")
-    return minimum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
+    return _over_neighbours(minimum_filter, depth, size)
 
 
 def max_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
@@ -299,9 +297,15 @@ def max_depth_over_neighbours(depth: np.ndarray, size: int = 3) -> np.ndarray:
     """
     from scipy.ndimage import maximum_filter
 
+    return _over_neighbours(maximum_filter, depth, size)
+
+
+def _over_neighbours(window_filter, depth: np.ndarray, size: int) -> np.ndarray:
+    """``window_filter`` (scipy.ndimage's minimum or maximum filter) of ``depth`` [h, w] over
+    ``size`` x ``size`` pixels, edges repeated, as float64; ``size`` must be odd and >= 1."""
     if int(size) < 1 or int(size) % 2 == 0:
         raise InputError(f"size must be an odd integer >= 1, got {size!r}", field="size")
-    return maximum_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
+    return window_filter(np.asarray(depth, dtype=np.float64), size=int(size), mode="nearest")
 
 
 def smooth_pixels(depth: np.ndarray) -> np.ndarray:
