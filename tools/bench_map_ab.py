@@ -5,9 +5,8 @@
 
 Suite rooms (scenelabel.data.suite) are built once with the working tree's code (the default
 preset, ``auto``, with STEPS steps: a fixed step count, so the machine's load does not change the
-build), then
-each build's ``occupancy_map(0.05)`` is made and scored by the code of ``--base`` (a git worktree,
-put first on ``PYTHONPATH``) and by the working tree, each in a fresh process: the map's time
+build), then each build's ``occupancy_map(0.05)`` is made and scored by the code of ``--base`` (a
+git worktree, put first on ``PYTHONPATH``) and by the working tree, each in a fresh process: the map's time
 (the faster of REPEATS calls after a warm-up), and against the room's exact geometry, as
 tools/bench_suite.py scores it, the labels of points 2 cm behind true surfaces and of free points
 in front of them, the F-score at 5 cm, and the UNKNOWN fraction; and the time of a render of each
@@ -102,7 +101,7 @@ def build_room(name: str, workdir: Path) -> tuple[Path, Path, str]:
     room = suite_spec(name)
     scene_dir = write_suite_scene(workdir / room.name, room)
     config = preset(AUTO_PRESET, {"train": {"steps": STEPS, "time_budget": 1e9},
-                             "output": {"write_map": False, "write_renders": False}})
+                                  "output": {"write_map": False, "write_renders": False}})
     build(scene_dir, workdir / f"{room.name}_build", config, progress=False)
     room_set = "pool" if room in LAYOUT_POOL else "tuning" if room.tuning else "held out"
     return scene_dir, workdir / f"{room.name}_build", room_set
