@@ -91,20 +91,20 @@ print(json.dumps({{
 
 
 def build_room(name: str, workdir: Path) -> tuple[Path, Path, str]:
-    """(scene folder, build folder, set) of suite room ``name``, built with STEPS steps; set: "tuning",
-    "held out" (out of every tuning decision) or "pool" (scenelabel.data.suite.LAYOUT_POOL's
-    forward-facing rooms, which no suite run holds)."""
+    """(scene folder, build folder, set) of suite room ``name``, built with STEPS steps; set as
+    tools/probe_layout.py's ``room_set``: "tuning", "held out" or "pool"."""
+    from probe_layout import room_set  # tools/probe_layout.py, beside this script
+
     from scenelabel import build, preset
     from scenelabel.config import AUTO_PRESET
-    from scenelabel.data.suite import LAYOUT_POOL, suite_spec, write_suite_scene
+    from scenelabel.data.suite import suite_spec, write_suite_scene
 
     room = suite_spec(name)
     scene_dir = write_suite_scene(workdir / room.name, room)
     config = preset(AUTO_PRESET, {"train": {"steps": STEPS, "time_budget": 1e9},
                                   "output": {"write_map": False, "write_renders": False}})
     build(scene_dir, workdir / f"{room.name}_build", config, progress=False)
-    room_set = "pool" if room in LAYOUT_POOL else "tuning" if room.tuning else "held out"
-    return scene_dir, workdir / f"{room.name}_build", room_set
+    return scene_dir, workdir / f"{room.name}_build", room_set(room.name)
 
 
 def measure(code_root: Path, scene: str, scene_dir: Path, build_dir: Path) -> dict:
@@ -192,8 +192,8 @@ def main() -> None:
         with base_worktree(args.base, work / "base") as base_tree:
             for scene in args.scenes:
                 print(f"{scene}: building ...", flush=True)
-                scene_dir, build_dir, room_set = build_room(scene, work)
-                row = {"scene": scene, "set": room_set,
+                scene_dir, build_dir, which = build_room(scene, work)
+                row = {"scene": scene, "set": which,
                        "base": measure(base_tree, scene, scene_dir, build_dir),
                        "new": measure(REPO, scene, scene_dir, build_dir)}
                 print(f"  {row}", flush=True)

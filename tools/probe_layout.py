@@ -58,8 +58,9 @@ def _interior(name: str) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(3), np.asarray(suite_spec(name.split(" ")[0]).size, np.float64)
 
 
-def _set_of(name: str) -> str:
-    """"tuning", "held out" (a suite room out of every tuning decision) or "pool" (tools/probe_layout.py's alone)."""
+def room_set(name: str) -> str:
+    """"tuning", "held out" (a suite room out of every tuning decision) or "pool" (scenelabel.data.suite.LAYOUT_POOL's
+    forward-facing rooms, which no suite run holds); tools/bench_map_ab.py labels its rows with it too."""
     from scenelabel.data.suite import LAYOUT_POOL, suite_spec
 
     room = name.split(" ")[0]
@@ -117,7 +118,7 @@ def _row(name: str, scene_dir: Path, tilt: float) -> dict:
 
     return {
         "room": name,
-        "set": _set_of(name),
+        "set": room_set(name),
         "views": len(train),
         "resolution": f"{scene.images[0].shape[1]}x{scene.images[0].shape[0]}",
         "seconds": seconds,
