@@ -304,7 +304,7 @@ def _export_rrd(args: argparse.Namespace, source: Path, out: Path, build: bool) 
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
-    from scenelabel.maps import exports
+    from scenelabel._cores import sharing_cores
 
     source, out = Path(args.source), Path(args.out)
     args.format = export_format(args.format, out)
@@ -313,6 +313,15 @@ def _cmd_export(args: argparse.Namespace) -> None:
         raise InputError(
             "--workers and --scheduler apply to --format zarr from a build folder (the chunked export)", path=source
         )
+    # in this process, the export is a job sharing the cores (scenelabel._cores); a cluster's workers
+    # have one thread each
+    with contextlib.nullcontext() if cluster else sharing_cores():
+        _export(args, source, out, build, cluster)
+
+
+def _export(args: argparse.Namespace, source: Path, out: Path, build: bool, cluster: bool) -> None:
+    from scenelabel.maps import exports
+
     if args.format == "rrd":
         _export_rrd(args, source, out, build)
         return

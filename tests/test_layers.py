@@ -17,7 +17,7 @@ PACKAGE = Path(scenelabel.__file__).resolve().parent
 
 # Lowest first. A module may import modules of its own layer or of a lower one, never a higher one.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("core", ("scenelabel.errors", "scenelabel._version", "scenelabel._files", "scenelabel.config",
+    ("core", ("scenelabel.errors", "scenelabel._version", "scenelabel._files", "scenelabel._cores", "scenelabel.config",
               "scenelabel.metrics", "scenelabel.codes")),
     ("geometry", ("scenelabel.geometry",)),
     ("data", ("scenelabel.data",)),

@@ -45,6 +45,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from scenelabel._cores import update_share
 from scenelabel.errors import CheckpointError, InputError
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME
 from scenelabel.maps import (
@@ -152,8 +153,10 @@ def _evaluate_chunk(
 ) -> None:
     """Pass 1: evaluate the field on one zarr chunk of level 0 and write its four arrays.
 
-    The chunk is evaluated in blocks of at most :data:`EVAL_BLOCK` voxels per axis.
+    The chunk is evaluated in blocks of at most :data:`EVAL_BLOCK` voxels per axis, on this job's
+    share of the cores (:func:`scenelabel._cores.update_share`).
     """
+    update_share()
     field = _field(source)
     shape = tuple(s.stop - s.start for s in chunk)
     label = np.empty(shape, np.int16)

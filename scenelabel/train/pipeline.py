@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from scenelabel._cores import share_summary, sharing_cores, update_share
 from scenelabel._files import atomic_write_bytes
 from scenelabel._version import __version__
 from scenelabel.config import (
@@ -459,7 +460,7 @@ def _training_plan(config: BuildConfig, static: dict) -> str:
     choice = f", {static['preset_choice']}" if static["preset_choice"] else ""
     return (
         f"bounds {size} ({static['aabb_source']}); training ({config.preset}{choice}): {limit}; "
-        f"distortion term {distortion['weight']:g} ({distortion['why']})"
+        f"distortion term {distortion['weight']:g} ({distortion['why']}); {share_summary()}"
     )
 
 
@@ -478,6 +479,7 @@ def _training_metrics(trainer: Trainer) -> dict:
     }
 
 
+@sharing_cores()
 def build(
     scene_path: str | Path | Scene,
     out_dir: str | Path | None = None,
@@ -500,6 +502,8 @@ def build(
     Under ``torchrun`` (``WORLD_SIZE`` > 1) every process trains the same field data-parallel
     (:mod:`scenelabel.train.distributed`); rank 0 alone writes the checkpoint, evaluates, and writes
     metrics, renders and map; the other ranks return after training.
+    While it runs, the build shares the cores with the other scenelabel jobs on the machine
+    (:func:`scenelabel._cores.sharing_cores`).
 
     Returns:
         BuildResult with the loaded SemanticField and the metrics (other ranks: no field, and
@@ -570,6 +574,7 @@ def build(
     save_checkpoint(ckpt_path, payload(trainer))
     atomic_write_bytes(out_dir / "config.json", json.dumps(config_to_dict(config), indent=2).encode())
 
+    update_share()  # evaluation and the map run on this job's share of the cores too
     field = SemanticField.load(out_dir, device=str(dev))
     renders_dir = None
     if config.output.write_renders and test_idx:

@@ -18,6 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from scenelabel._cores import share_summary, update_share
 from scenelabel.codes import FREE
 from scenelabel.config import (
     AUTO,
@@ -545,10 +546,14 @@ class Trainer:
             on_checkpoint, progress = None, False
         self.render.train()
         bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
+        threads = torch.get_num_threads()
         try:
             while self.state.step < tc.steps:
                 if interrupted.is_set():
                     raise KeyboardInterrupt
+                if update_share() != threads:  # other scenelabel jobs started or ended (scenelabel._cores)
+                    threads = torch.get_num_threads()
+                    bar.write(f"step {self.state.step}: {share_summary()}")
                 logs = self.train_step()
                 elapsed = time.perf_counter() - start
                 if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
@@ -556,6 +561,7 @@ class Trainer:
                 self.state.elapsed = elapsed
                 if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
                     logs["time"] = self.state.elapsed
+                    logs["threads"] = threads
                     self.state.history.append(logs)
                     bar.set_postfix(loss=f"{logs['loss']:.4f}", psnr=f"{logs['psnr']:.1f}", spr=f"{logs['samples_per_ray']:.0f}")
                 bar.update(1)

@@ -1,0 +1,162 @@
+"""Builds at the same time on one machine: training time per build, by how each build sets its threads.
+
+    .venv/bin/python tools/bench_threads.py                      # docs/threads.md and .json
+    .venv/bin/python tools/bench_threads.py --steps 100 --repeats 1 --out /tmp/t.md   # a quick look
+
+One suite room (``--scene``, default studio-3x3) is written once. Each configuration starts one
+or two builds of it, at the same moment or the second some seconds later, each in its own
+process, each training ``--steps`` steps with no time budget (so a slow build trains as long as
+a fast one and the times compare), without writing a map or renders. Builds share the cores
+(scenelabel._cores) unless ``OMP_NUM_THREADS`` is set; set to all cores, each build keeps them,
+which is what every build did before the sharing. A row gives the median over its builds and repeats of the training time
+(``metrics["train_seconds"]``) and the wall time from the first start to the last end. "Builds per
+minute" is the builds finished over that wall time: what a machine running several builds gets done.
+Run it on an otherwise idle machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+WORKER = """
+import json, sys, time
+from scenelabel import build, preset
+from scenelabel.config import AUTO_PRESET
+overrides = {{"train": {{"steps": {steps}, "time_budget": None}}, "output": {{"write_map": False, "write_renders": False}}}}
+cfg = preset(AUTO_PRESET, overrides)
+start = time.perf_counter()
+result = build({scene!r}, sys.argv[1], cfg, progress=False)
+threads = sorted({{h["threads"] for h in result.metrics["history"]}})
+print(json.dumps({{"train_seconds": result.metrics["train_seconds"], "steps": result.metrics["steps"],
+                  "build_seconds": time.perf_counter() - start, "threads": threads}}))
+"""
+
+CORES = str(os.cpu_count() or 1)
+
+# name -> (builds at once, environment added to each build's, seconds between starts)
+CONFIGS: dict[str, tuple[int, dict[str, str], float]] = {
+    "one build": (1, {}, 0.0),
+    "one build, OMP_NUM_THREADS=1": (1, {"OMP_NUM_THREADS": "1"}, 0.0),
+    "one build, OMP_WAIT_POLICY=PASSIVE": (1, {"OMP_WAIT_POLICY": "PASSIVE"}, 0.0),
+    "two builds": (2, {}, 0.0),
+    "two builds, the second 30 s later": (2, {}, 30.0),
+    "two builds, OMP_NUM_THREADS=all cores": (2, {"OMP_NUM_THREADS": CORES}, 0.0),
+    "two builds, OMP_NUM_THREADS=all cores, OMP_WAIT_POLICY=PASSIVE": (
+        2, {"OMP_NUM_THREADS": CORES, "OMP_WAIT_POLICY": "PASSIVE"}, 0.0),
+    "two builds, OMP_NUM_THREADS=1": (2, {"OMP_NUM_THREADS": "1"}, 0.0),
+}
+"""Without OMP_NUM_THREADS, builds share the cores (scenelabel._cores); with it set to all cores,
+each keeps them: what every build did before the sharing."""
+
+
+def run_config(scene: Path, steps: int, config: tuple[int, dict[str, str], float], work: Path) -> dict:
+    """Start the configuration's builds; their results and the wall time from the first start until the last end."""
+    copies, env_extra, delay = config
+    code = WORKER.format(steps=steps, scene=str(scene))
+    env = {**{k: v for k, v in os.environ.items() if not k.startswith("OMP_")}, **env_extra}
+    start = time.perf_counter()
+    procs = []
+    for i in range(copies):
+        if i:
+            time.sleep(delay)
+        procs.append(subprocess.Popen([sys.executable, "-c", code, str(work / f"build{i}")], cwd=REPO, env=env,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    outputs = [p.communicate() for p in procs]
+    wall = time.perf_counter() - start
+    builds = []
+    for p, (out, err) in zip(procs, outputs):
+        if p.returncode != 0:
+            raise RuntimeError(f"a build failed:\n{err[-3000:]}")
+        result = json.loads(out.strip().splitlines()[-1])
+        result["threads"] = sorted({*result["threads"], *map(int, re.findall(r"step \d+: (\d+) threads?", err))})
+        builds.append(result)
+    return {"wall_seconds": wall, "builds": builds}
+
+
+def summarise(name: str, config: tuple, runs: list[dict]) -> dict:
+    train = [b["train_seconds"] for r in runs for b in r["builds"]]
+    walls = [r["wall_seconds"] for r in runs]
+    return {
+        "config": name,
+        "builds_at_once": config[0],
+        "train_seconds_median": statistics.median(train),
+        "train_seconds_range": [min(train), max(train)],
+        "wall_seconds_median": statistics.median(walls),
+        "builds_per_minute": 60 * config[0] / statistics.median(walls),
+        "threads": sorted({t for r in runs for b in r["builds"] for t in b["threads"]}),
+        "runs": runs,
+    }
+
+
+def write_report(rows: list[dict], args: argparse.Namespace, out: Path) -> None:
+    first = rows[0]
+    lines = [
+        "# Builds at the same time: threads",
+        "",
+        f"Generated by `{shlex.join(['.venv/bin/python', 'tools/bench_threads.py', *sys.argv[1:]])}`" + " (one run); "
+        "that command regenerates it.",
+        f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+        f"{time.strftime('%Y-%m-%d')}. Room {args.scene}, {args.steps} training steps per build, no time budget, "
+        f"{args.repeats} repeats of each row.",
+        "",
+        "Without `OMP_NUM_THREADS`, the builds share the cores (`scenelabel._cores`): each takes the threads it "
+        "started with divided by the scenelabel jobs running, and takes them back when the others end. With "
+        "`OMP_NUM_THREADS` set to all cores, each build keeps them, as every build did before the sharing. "
+        "Threads per build: the thread counts seen in the builds' training logs. Wall s: from the first "
+        "start to the last end.",
+        "",
+        "| builds at once, setting | threads per build (all seen) | training s per build (median, range) | "
+        "wall s (median) | builds per minute | training time / the first row's |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lo, hi = r["train_seconds_range"]
+        lines.append(
+            f"| {r['config']} | {', '.join(map(str, r['threads']))} | {r['train_seconds_median']:.1f} "
+            f"({lo:.1f}-{hi:.1f}) | {r['wall_seconds_median']:.1f} | {r['builds_per_minute']:.2f} | "
+            f"{r['train_seconds_median'] / first['train_seconds_median']:.2f} |"
+        )
+    out.write_text("\n".join(lines) + "\n")
+    out.with_suffix(".json").write_text(json.dumps({"args": vars(args), "rows": rows}, indent=1, default=str) + "\n")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scene", default="studio-3x3", help="suite room (default: studio-3x3)")
+    parser.add_argument("--steps", type=int, default=300, help="training steps per build (default: 300)")
+    parser.add_argument("--repeats", type=int, default=2, help="runs of each configuration (default: 2)")
+    parser.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS), metavar="NAME")
+    parser.add_argument("--out", type=Path, default=REPO / "docs" / "threads.md")
+    args = parser.parse_args()
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = Path(tmp) / args.scene
+        write_suite_scene(scene, suite_spec(args.scene))
+        rows = []
+        for name in args.configs:
+            runs = []
+            for repeat in range(args.repeats):
+                with tempfile.TemporaryDirectory(dir=tmp) as work:
+                    runs.append(run_config(scene, args.steps, CONFIGS[name], Path(work)))
+                print(f"{name} #{repeat + 1}: {[round(b['train_seconds'], 1) for b in runs[-1]['builds']]} s", flush=True)
+            rows.append(summarise(name, CONFIGS[name], runs))
+    write_report(rows, args, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
