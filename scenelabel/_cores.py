@@ -70,17 +70,21 @@ class _Share:
             self.entry = None
 
     def jobs(self) -> int:
-        """The jobs registered and running, this one included; entries of ended processes are removed."""
+        """The jobs registered and running, this one included; entries of ended processes are removed.
+        A registry that cannot be read (removed by a temp cleaner) counts this job alone."""
         if self.entry is None:
             return 1
+        try:  # "." : an entry being written (atomic_write_bytes's temp file)
+            others = [e for e in self.entry.parent.iterdir() if e != self.entry and not e.name.startswith(".")]
+        except OSError:
+            return 1
         count = 1
-        for entry in self.entry.parent.iterdir():
-            if entry == self.entry or entry.name.startswith("."):  # "." : an entry being written
-                continue
+        for entry in others:
             if _alive(entry):
                 count += 1
             else:
-                entry.unlink(missing_ok=True)
+                with contextlib.suppress(OSError):
+                    entry.unlink()
         return count
 
     def update(self, force: bool = False) -> int:
@@ -96,7 +100,8 @@ class _Share:
 
     def close(self) -> None:
         if self.entry is not None:
-            self.entry.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                self.entry.unlink()
         torch.set_num_threads(self.threads)
 
 

@@ -159,6 +159,17 @@ def test_unwritable_registry_runs_alone(tmp_path, threads):
     assert torch.get_num_threads() == threads
 
 
+def test_a_registry_removed_meanwhile_counts_this_job_alone(other_job, threads):
+    registry, _ = other_job
+    with sharing_cores(registry):
+        assert torch.get_num_threads() == threads // 2
+        for entry in registry.iterdir():
+            entry.unlink()
+        registry.rmdir()  # a temp cleaner
+        assert update_share() == threads
+    assert torch.get_num_threads() == threads
+
+
 def test_update_share_outside_is_a_no_op(threads):
     assert update_share() == threads
 
