@@ -326,3 +326,34 @@ def test_an_object_capture_without_bounds_is_bounded_by_its_silhouettes(tmp_path
     assert np.array_equal(masks[0], scene.labels[0] != -1) and masks[1].all()
     cut = [np.where(np.arange(48) < 24, 3, label) for label in scene.labels]  # the left half shows box_red
     assert silhouette_points(dataclasses.replace(scene, labels=cut), list(range(len(scene)))) is None
+
+
+def test_a_build_beside_another_job_trains_on_its_share_of_the_cores(small_toy, tmp_path, monkeypatch, capsys):
+    """Another running scenelabel job (a sleeping process registered as one): the build trains on half
+    its threads, says so in its plan, logs them, and gives them back at the end (scenelabel._cores)."""
+    import os
+    import subprocess
+    import sys
+
+    import psutil
+
+    from scenelabel import _cores
+
+    registry = tmp_path / "jobs"
+    registry.mkdir()
+    monkeypatch.setattr(_cores, "default_registry", lambda: registry)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        (registry / str(other.pid)).write_text(repr(psutil.Process(other.pid).create_time()))
+        result = build(small_toy, tmp_path / "out", _small_config(), progress=True)
+        assert {h["threads"] for h in result.metrics["history"]} == {1}
+        assert torch.get_num_threads() == 2  # given back
+        assert not (registry / str(os.getpid())).exists()
+        assert "; 1 thread, sharing the cores with 1 other scenelabel job" in capsys.readouterr().err  # the plan
+    finally:
+        other.kill()
+        other.wait()
+        torch.set_num_threads(before)

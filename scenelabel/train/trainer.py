@@ -546,14 +546,14 @@ class Trainer:
             on_checkpoint, progress = None, False
         self.render.train()
         bar = tqdm(total=tc.steps, initial=self.state.step, disable=not progress, unit="step", dynamic_ncols=True)
-        threads = torch.get_num_threads()
+        threads, told = torch.get_num_threads(), False
         try:
             while self.state.step < tc.steps:
                 if interrupted.is_set():
                     raise KeyboardInterrupt
-                if update_share() != threads:  # other scenelabel jobs started or ended (scenelabel._cores)
-                    threads = torch.get_num_threads()
-                    bar.write(f"step {self.state.step}: {share_summary()}")
+                if update_share() < threads and not told:  # other scenelabel jobs started (scenelabel._cores)
+                    told = True  # once: the share then follows the jobs as they start and end
+                    bar.write(f"step {self.state.step}: {share_summary()}; the share follows them as they start and end")
                 logs = self.train_step()
                 elapsed = time.perf_counter() - start
                 if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
@@ -561,7 +561,7 @@ class Trainer:
                 self.state.elapsed = elapsed
                 if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
                     logs["time"] = self.state.elapsed
-                    logs["threads"] = threads
+                    logs["threads"] = torch.get_num_threads()
                     self.state.history.append(logs)
                     bar.set_postfix(loss=f"{logs['loss']:.4f}", psnr=f"{logs['psnr']:.1f}", spr=f"{logs['samples_per_ray']:.0f}")
                 bar.update(1)
