@@ -132,6 +132,12 @@ class SamplingConfig:
     # on the suite's rooms, and it did not keep tools/bench.py's lamp pole (docs/suite_grid.md, where
     # it was on and variant no-grid-from-training off; docs/bench_grid.md; docs/models.md)
     grid_from_training: bool = False
+    # each training step, this share of its rays, those with the largest colour error, re-open the
+    # density-grid cells from their start to their rendered depth (render.sampling.DensityGrid.reopen):
+    # a thin object the grid emptied before the field had learnt it is sampled again (0: off);
+    # until grid_reopen_until of the run
+    grid_reopen: float = 0.0
+    grid_reopen_until: float = 0.5
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -170,6 +176,10 @@ class SamplingConfig:
         decay = self.grid_decay
         if decay != AUTO and (isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1)):
             raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
+        for name in ("grid_reopen", "grid_reopen_until"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0 <= value <= 1):
+                raise ConfigError(f"sampling.{name} must be a fraction in [0, 1], got {value!r}")
         if not isinstance(self.grid_from_training, bool):
             raise ConfigError(f"sampling.grid_from_training must be true or false, got {self.grid_from_training!r}")
         stop = self.train_min_trans

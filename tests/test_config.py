@@ -86,6 +86,9 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"depth_ray_end": True}},
         {"sampling": {"train_min_trans": 1.0}},
         {"sampling": {"train_min_trans": -1e-4}},
+        {"sampling": {"grid_reopen": 1.5}},
+        {"sampling": {"grid_reopen": -0.01}},
+        {"sampling": {"grid_reopen_until": True}},
         {"sampling": {"train_min_trans": float("nan")}},
         {"sampling": {"train_min_trans": True}},
         {"train": {"background": "blue"}},
@@ -108,7 +111,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background|train_min_trans"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background|train_min_trans|grid_reopen"):
         preset("fast", overrides)
 
 

@@ -112,6 +112,53 @@ def test_grid_update_marks_dense_cells_only():
 
 
 
+def _cells_crossed_naive(aabb_lo, aabb_hi, r, origin, direction, t0, t1):
+    """float64 slab test per cell: the cells [i, j, k] whose box the segment meets."""
+    size = (aabb_hi - aabb_lo) / r
+    crossed = set()
+    for i in range(r):
+        for j in range(r):
+            for k in range(r):
+                lo = aabb_lo + size * np.array([i, j, k])
+                hi = lo + size
+                enter, leave = t0, t1
+                for a in range(3):
+                    if abs(direction[a]) < 1e-12:
+                        if not lo[a] <= origin[a] < hi[a]:
+                            enter, leave = 1.0, 0.0
+                        continue
+                    ta, tb = sorted(((lo[a] - origin[a]) / direction[a], (hi[a] - origin[a]) / direction[a]))
+                    enter, leave = max(enter, ta), min(leave, tb)
+                if leave - enter > 1e-3:  # crossed, not grazed at an edge
+                    crossed.add((i, j, k))
+    return crossed
+
+
+def test_grid_reopen_opens_the_cells_a_segment_crosses_for_three_refreshes():
+    """A grid emptied by a refresh: reopen gives the cells a segment crosses (against a float64 slab
+    test per cell) 2x the threshold, no other; carved cells stay empty; with a decay of 0.8 and a
+    field empty there they stay occupied for three refreshes and close at the fourth."""
+    lo, hi, r = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]), 6
+    grid = DensityGrid(BoxWarp(torch.tensor(np.stack([lo, hi]), dtype=torch.float32)), resolution=r, step=0.01)
+    empty = lambda p: torch.zeros(len(p))  # noqa: E731
+    grid.update(empty, decay=0.8, generator=torch.Generator().manual_seed(0))
+    assert grid.occupied_fraction == 0.0
+    grid.carved[0, 0, 0] = True
+    origin, direction = np.array([-1.5, -0.9, -0.95]), np.array([1.0, 0.6, 0.5]) / np.linalg.norm([1.0, 0.6, 0.5])
+    t0, t1 = 0.6, 2.9
+    grid.reopen(*(torch.tensor(x[None], dtype=torch.float32) for x in (origin, direction)),
+                torch.tensor([t0]), torch.tensor([t1]))
+    expected = _cells_crossed_naive(lo, hi, r, origin, direction, t0, t1) - {(0, 0, 0)}
+    assert len(expected) > r
+    assert set(map(tuple, grid.bits.nonzero().tolist())) == expected
+    threshold = float(grid.sigma_threshold.flatten()[0])
+    i, j, k = next(iter(expected))
+    assert grid.density[i, j, k].item() == pytest.approx(2.0 * threshold)
+    for refresh in range(4):
+        grid.update(empty, decay=0.8, generator=torch.Generator().manual_seed(refresh + 1))
+        assert grid.bits.sum().item() == (len(expected) if refresh < 3 else 0)
+
+
 def test_grid_observe_keeps_the_densest_sample_of_each_cell():
     """observe raises each cell's remembered density to the largest σ of the samples inside it (a
     float64 loop over the samples), ignores samples outside the box, and a cell held so survives a

@@ -521,3 +521,24 @@ def test_a_build_with_depth_plans_its_training_time_from_its_setup_and_held_out_
     given = build(loaded, tmp_path / "given", preset("quick", {"train": {"steps": 2, "time_budget": 30.0}, "output": output}),
                   progress=False)
     assert "time_plan" not in given.field.meta and given.field.config.train.time_budget == 30.0
+
+
+@pytest.mark.parametrize("share", [0.0, 0.25])
+def test_a_step_reopens_the_grid_along_its_worst_coloured_rays(scene, share):
+    """A grid emptied before the step (as a refresh emptying a thin object's cells would): with
+    ``sampling.grid_reopen`` the step re-opens the cells along its rays of largest colour error, from
+    their start to their rendered depth; without it the grid stays empty."""
+    config = preset("quick", {
+        "sampling": {"n_steps": 32, "grid_resolution": 16, "grid_reopen": share},
+        "train": {"steps": 10, "batch_rays": 64},
+        "output": {"write_map": False},
+    })
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    trainer.grid.update(lambda p: torch.zeros(len(p)), decay=0.0)
+    assert trainer.grid.occupied_fraction == 0.0
+    trainer.train_step()  # step 0: before the grid's warm-up, no refresh
+    opened = int(trainer.grid.bits.sum())
+    if share == 0.0:
+        assert opened == 0
+    else:  # 16 rays' segments through a 16³ grid: at least a cell each, far from all of it
+        assert 16 <= opened < 0.5 * trainer.grid.resolution**3

@@ -89,6 +89,10 @@ VARIANTS: dict[str, dict] = {
     "grid-from-training": {"sampling": {"grid_from_training": True}},
     # the density grid's decay without depth: "auto" gives 0.8 to a build whose only depth is its room layout
     "decay-0.95": {"sampling": {"grid_decay": 0.95}},
+    # the worst-coloured 1 % of each step's rays re-open their density-grid cells (sampling.grid_reopen)
+    "reopen": {"sampling": {"grid_reopen": 0.01}},
+    "reopen-seed-1": {"sampling": {"grid_reopen": 0.01}, "train": {"seed": 1}},
+    "reopen-seed-2": {"sampling": {"grid_reopen": 0.01}, "train": {"seed": 2}},
     # the same build with another training seed (`train.seed`, default 0: initial weights, rays drawn)
     "seed-1": {"train": {"seed": 1}},
     "seed-2": {"train": {"seed": 2}},

@@ -36,6 +36,7 @@ TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F
 VARIANTS: dict[str, dict] = {
     "-": {},
     "no-layout": {"data": {"layout_depth": False}},
+    "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
@@ -87,6 +88,7 @@ VARIANTS: dict[str, dict] = {
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
+    "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",

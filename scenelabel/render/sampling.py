@@ -336,6 +336,13 @@ REBUILD_SAMPLES = 3
 REBUILD_DILATE = 1
 """Cells by which :meth:`DensityGrid.rebuild` grows the occupied region."""
 
+REOPEN_FACTOR = 2.0
+""":meth:`DensityGrid.reopen` gives a cell this many times the threshold: with a refresh's decay of
+0.8 it then stays occupied for three refreshes unless the field makes it dense."""
+
+REOPEN_POINTS_PER_CELL = 4
+"""Points per cell of the grid's side at which :meth:`DensityGrid.reopen` samples a segment."""
+
 
 def cell_steps(warp: nn.Module, aabb_n: torch.Tensor, resolution: int, n_steps: int) -> float | torch.Tensor:
     """The marching step through an occupancy-grid cell (normalised units), for its opacity threshold.
@@ -436,6 +443,38 @@ class DensityGrid(nn.Module):
         density = torch.where(torch.isinf(density), torch.zeros_like(density), density)  # inf: never refreshed
         cells = cells.to(density.device)
         density[cells] = torch.maximum(density[cells] * decay, sigmas.to(density.device))
+        self.density = density.reshape(self.density.shape)
+        self.bits = (self.density > self.sigma_threshold) & ~self.carved
+
+    @torch.no_grad()
+    def reopen(
+        self,
+        origins: torch.Tensor,  # [n_rays, 3]
+        directions: torch.Tensor,  # [n_rays, 3]
+        t_starts: torch.Tensor,  # [n_rays]
+        t_ends: torch.Tensor,  # [n_rays]
+        factor: float = REOPEN_FACTOR,
+    ) -> None:
+        """Re-open the cells the segments ``origins + t directions``, t in [t_starts, t_ends], cross:
+        each gets at least ``factor`` x the threshold as its remembered density, so it stays occupied
+        for a few refreshes whatever the field holds there now (carved cells stay empty).
+
+        For the training rays a grid has wrongly emptied: a thin object (a lamp's 5 cm pole) whose
+        cells a refresh's random point missed before the field had learnt it is never sampled again,
+        and its rays see the wall behind it for the rest of the run; re-opened, the field can grow it.
+        A segment is sampled at REOPEN_POINTS_PER_CELL x the grid's side points evenly in t: with the
+        box warp it meets every cell it crosses over more than a 1 / REOPEN_POINTS_PER_CELL of a cell's
+        side (a corner it clips may stay closed); with the forward warp, whose cells shrink toward the
+        camera, it may skip some of the nearest."""
+        n = REOPEN_POINTS_PER_CELL * self.resolution
+        u = torch.linspace(0.0, 1.0, n, device=origins.device)
+        t = t_starts[:, None] + (t_ends - t_starts)[:, None] * u  # [n_rays, n]
+        points = origins[:, None, :] + directions[:, None, :] * t[..., None]
+        cells = cell_indices(self.resolution, self.warp(points.reshape(-1, 3)))
+        cells = torch.unique(cells[cells >= 0]).to(self.density.device)
+        density = self.density.flatten()
+        threshold = self.sigma_threshold.to(density.device).expand_as(self.density).flatten()
+        density[cells] = torch.maximum(density[cells], factor * threshold[cells])
         self.density = density.reshape(self.density.shape)
         self.bits = (self.density > self.sigma_threshold) & ~self.carved
 

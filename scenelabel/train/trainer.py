@@ -408,6 +408,18 @@ class Trainer:
         for group, base in zip(self.optimizer.param_groups, self.base_lrs):
             group["lr"] = base * factor
 
+    def _reopen_worst(self, out, target_rgb: torch.Tensor, idx: torch.Tensor, t_stop: torch.Tensor) -> None:
+        """Re-open the grid cells along this step's rays of largest colour error (``sampling.grid_reopen``
+        of them), from each ray's start to its rendered depth (its stop where it met nothing):
+        :meth:`~scenelabel.render.sampling.DensityGrid.reopen`."""
+        error = ((out.rgb.detach() - target_rgb) ** 2).sum(-1)  # [n_rays]
+        worst = error.topk(max(1, round(self.config.sampling.grid_reopen * len(error)))).indices
+        r = self.rays
+        t_min, t_stop = r.t_min[idx][worst], t_stop[worst]
+        depth = torch.nan_to_num(out.depth.detach()[worst], nan=float("inf"))
+        t_end = torch.minimum(torch.maximum(depth, t_min), t_stop)
+        self.grid.reopen(r.origins[idx][worst], r.directions[idx][worst], t_min, t_end)
+
     def train_step(self) -> dict:
         """One optimisation step on a random batch of rays; returns the logged scalars."""
         tc, sc = self.config.train, self.config.sampling
@@ -450,6 +462,8 @@ class Trainer:
         if sc.grid_from_training and out.sample_points is not None:  # each rank its own; the refresh keeps rank 0's
             self.grid.observe(out.sample_points, out.sample_sigmas)
         target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
+        if sc.grid_reopen > 0 and self.coarse is None and self.progress() < sc.grid_reopen_until:
+            self._reopen_worst(out, target_rgb, idx, t_stop)
         mse = photometric_mse(out.rgb, target_rgb)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
