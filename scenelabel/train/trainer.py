@@ -410,14 +410,13 @@ class Trainer:
 
     def _reopen_worst(self, out, target_rgb: torch.Tensor, idx: torch.Tensor, t_stop: torch.Tensor) -> None:
         """Re-open the grid cells along this step's rays of largest colour error (``sampling.grid_reopen``
-        of them), from each ray's start to its rendered depth (its stop where it met nothing):
+        of them), from each ray's start to its rendered depth (its far end where it met nothing):
         :meth:`~scenelabel.render.sampling.DensityGrid.reopen`."""
         error = ((out.rgb.detach() - target_rgb) ** 2).sum(-1)  # [n_rays]
         worst = error.topk(max(1, round(self.config.sampling.grid_reopen * len(error)))).indices
         r = self.rays
         t_min, t_stop = r.t_min[idx][worst], t_stop[worst]
-        depth = torch.nan_to_num(out.depth.detach()[worst], nan=float("inf"))
-        t_end = torch.minimum(torch.maximum(depth, t_min), t_stop)
+        t_end = torch.minimum(torch.maximum(out.depth.detach()[worst], t_min), t_stop)
         self.grid.reopen(r.origins[idx][worst], r.directions[idx][worst], t_min, t_end)
 
     def train_step(self) -> dict:
