@@ -37,6 +37,8 @@ VARIANTS: dict[str, dict] = {
     "-": {},
     "no-layout": {"data": {"layout_depth": False}},
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
+    "warmup-128": {"sampling": {"grid_warmup": 128}},  # every grid cell marched for the first 128 steps
+    "warmup-16": {"sampling": {"grid_warmup": 16}},
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
@@ -88,6 +90,8 @@ VARIANTS: dict[str, dict] = {
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
+    "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
+    "warmup-16": "the density grid's first refresh after 16 training steps (`sampling.grid_warmup` 16)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
@@ -127,6 +131,8 @@ DEPTH_NOTES: dict[str, str] = {
 SEEDS = (1, 2)
 for _seed in SEEDS:
     VARIANTS[f"seed-{_seed}"] = {"train": {"seed": _seed}}
+    VARIANTS[f"warmup-128-seed-{_seed}"] = {"sampling": {"grid_warmup": 128}, "train": {"seed": _seed}}
+    VARIANTS[f"warmup-16-seed-{_seed}"] = {"sampling": {"grid_warmup": 16}, "train": {"seed": _seed}}
     VARIANTS[f"margin-0.05-seed-{_seed}"] = {"train": {"free_margin": 0.05, "seed": _seed}}
     VARIANTS[f"depth-bg-scene-seed-{_seed}"] = {"train": {"depth_background": "scene", "seed": _seed}}
     VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
@@ -245,7 +251,11 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
     variant["output"] = {"write_map": False}
     config = preset(preset_name, variant)
     t0 = time.perf_counter()
-    result = build(scene_dir, Path(workdir) / "build", config, progress=False)
+    try:
+        result = build(scene_dir, Path(workdir) / "build", config, progress=False)
+    except Exception as error:  # e.g. a diverged build: a row that says so, and the run goes on
+        queue.put({"scene": room.name, "tuning": room.tuning, "variant": spec["variant"], "failed": f"{type(error).__name__}: {error}"})
+        return
     build_seconds = time.perf_counter() - t0
     m = result.metrics
     scene = load_scene(scene_dir)
@@ -432,6 +442,7 @@ def write_plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    rows = [r for r in rows if "failed" not in r]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     names = list(dict.fromkeys(r["scene"] for r in rows))
     variants = list(dict.fromkeys(r["variant"] for r in rows))
@@ -465,6 +476,8 @@ def code_version() -> str:
 def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> None:
     from scenelabel.config import DISTORTION_THIN_MAX
     variants = list(dict.fromkeys(r["variant"] for r in rows))
+    failed = [r for r in rows if "failed" in r]  # builds that raised: listed apart, in no table or aggregate
+    rows = [r for r in rows if "failed" not in r]
     code = ", ".join(sorted({r.get("code", "unknown") for r in rows}))
     with_depth = any(v.startswith("phone-depth") for v in variants)
     lines = [
@@ -510,6 +523,8 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     ]
     for variant in variants:
         lines += [*_aggregate(rows, variant), ""]
+    if failed:
+        lines += ["## Builds that failed", "", *(f"- {r['scene']} [{r['variant']}]: {r['failed']}" for r in failed), ""]
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
