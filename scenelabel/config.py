@@ -139,6 +139,9 @@ class SamplingConfig:
     # builds 1.25x as long, one diverged (docs/suite_reopen.md; docs/models.md)
     grid_reopen: float = 0.0
     grid_reopen_until: float = 0.5
+    # which rays re-open: "colour", the largest colour error; "labels", among the rays whose rendered
+    # class is wrong, the largest cross-entropy (a thin object's pixels render the wall behind it)
+    grid_reopen_by: str = "colour"
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -167,6 +170,7 @@ class SamplingConfig:
     def __post_init__(self) -> None:
         _check_choice("sampling.warp", self.warp, ("auto", "box", "forward"))
         _check_choice("sampling.strategy", self.strategy, ("grid", "hierarchical"))
+        _check_choice("sampling.grid_reopen_by", self.grid_reopen_by, ("colour", "labels"))
         for name in ("n_coarse", "n_fine"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

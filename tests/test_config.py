@@ -89,6 +89,7 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"grid_reopen": 1.5}},
         {"sampling": {"grid_reopen": -0.01}},
         {"sampling": {"grid_reopen_until": True}},
+        {"sampling": {"grid_reopen_by": "depth"}},
         {"sampling": {"train_min_trans": float("nan")}},
         {"sampling": {"train_min_trans": True}},
         {"train": {"background": "blue"}},

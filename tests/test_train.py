@@ -542,3 +542,38 @@ def test_a_step_reopens_the_grid_along_its_worst_coloured_rays(scene, share):
         assert opened == 0
     else:  # 16 rays' segments through a 16³ grid: at least a cell each, far from all of it
         assert 16 <= opened < 0.5 * trainer.grid.resolution**3
+
+
+def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
+    """``sampling.grid_reopen_by`` "labels": of a step's rays, only those whose rendered class is not
+    their label's re-open cells (the grid as :meth:`DensityGrid.reopen` along exactly those rays);
+    where every ray's class is right, nothing re-opens, whatever the colour error."""
+    from types import SimpleNamespace
+
+    config = preset("quick", {"sampling": {"n_steps": 32, "grid_resolution": 16, "grid_reopen": 0.25, "grid_reopen_by": "labels"},
+                              "train": {"steps": 10, "batch_rays": 64}})
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    r = trainer.rays
+    idx = torch.nonzero(r.channels >= 0).squeeze(1)[:64]
+    channels = r.channels[idx]
+    n_channels = int(r.channels.max()) + 1
+    log_probs = torch.log_softmax(10.0 * torch.nn.functional.one_hot(channels, max(n_channels, 2)).float(), -1)
+    wrong = torch.tensor([3, 17, 40])
+    log_probs[wrong] = log_probs[wrong].roll(1, dims=-1)  # these three render another class
+    t_stop = r.t_max[idx]
+    depth = 0.5 * (r.t_min[idx] + t_stop)
+    out = SimpleNamespace(rgb=torch.zeros(64, 3), depth=depth, class_log_probs=log_probs)
+    empty = lambda: trainer.grid.update(lambda p: torch.zeros(len(p)), decay=0.0)  # noqa: E731
+
+    empty()
+    trainer._reopen_worst(out, torch.ones(64, 3), idx, t_stop)  # the colour error is 3 on every ray
+    opened = trainer.grid.bits.clone()
+    empty()
+    trainer.grid.reopen(r.origins[idx][wrong], r.directions[idx][wrong], r.t_min[idx][wrong], depth[wrong])
+    assert opened.any() and torch.equal(opened, trainer.grid.bits)
+
+    empty()
+    right = SimpleNamespace(rgb=out.rgb, depth=depth, class_log_probs=torch.log_softmax(
+        10.0 * torch.nn.functional.one_hot(channels, max(n_channels, 2)).float(), -1))
+    trainer._reopen_worst(right, torch.ones(64, 3), idx, t_stop)
+    assert not trainer.grid.bits.any()

@@ -93,6 +93,8 @@ VARIANTS: dict[str, dict] = {
     "reopen": {"sampling": {"grid_reopen": 0.01}},
     "reopen-seed-1": {"sampling": {"grid_reopen": 0.01}, "train": {"seed": 1}},
     "reopen-seed-2": {"sampling": {"grid_reopen": 0.01}, "train": {"seed": 2}},
+    # ... or those whose rendered class is wrong (sampling.grid_reopen_by "labels")
+    "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},
     # every density-grid cell marched for the first N steps (sampling.grid_warmup)
     "warmup-128": {"sampling": {"grid_warmup": 128}},
     "warmup-128-seed-1": {"sampling": {"grid_warmup": 128}, "train": {"seed": 1}},

@@ -37,6 +37,7 @@ VARIANTS: dict[str, dict] = {
     "-": {},
     "no-layout": {"data": {"layout_depth": False}},
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
+    "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
     "warmup-128": {"sampling": {"grid_warmup": 128}},  # every grid cell marched for the first 128 steps
     "warmup-16": {"sampling": {"grid_warmup": 16}},
     "distortion": {"train": {"distortion_weight": 0.002}},
@@ -90,6 +91,7 @@ VARIANTS: dict[str, dict] = {
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
+    "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "warmup-16": "the density grid's first refresh after 16 training steps (`sampling.grid_warmup` 16)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",

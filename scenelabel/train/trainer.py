@@ -409,11 +409,24 @@ class Trainer:
             group["lr"] = base * factor
 
     def _reopen_worst(self, out, target_rgb: torch.Tensor, idx: torch.Tensor, t_stop: torch.Tensor) -> None:
-        """Re-open the grid cells along this step's rays of largest colour error (``sampling.grid_reopen``
-        of them), from each ray's start to its rendered depth (its far end where it met nothing):
-        :meth:`~scenelabel.render.sampling.DensityGrid.reopen`."""
-        error = ((out.rgb.detach() - target_rgb) ** 2).sum(-1)  # [n_rays]
-        worst = error.topk(max(1, round(self.config.sampling.grid_reopen * len(error)))).indices
+        """Re-open the grid cells along this step's worst rays (``sampling.grid_reopen`` of them), from
+        each ray's start to its rendered depth (its far end where it met nothing):
+        :meth:`~scenelabel.render.sampling.DensityGrid.reopen`. Worst by ``sampling.grid_reopen_by``:
+        the largest colour error, or the largest cross-entropy among the rays whose rendered class
+        is not their label's (fewer rays where fewer are wrong; none where none is)."""
+        n_worst = max(1, round(self.config.sampling.grid_reopen * len(idx)))
+        if self.config.sampling.grid_reopen_by == "labels":
+            channels = self.rays.channels[idx]  # [n_rays]: -1 unlabelled
+            log_probs = out.class_log_probs.detach()
+            target = channels.clamp(min=0)[:, None]
+            wrong = (channels >= 0) & (log_probs.argmax(-1) != target[:, 0])
+            error = torch.where(wrong, -log_probs.gather(-1, target)[:, 0], torch.full_like(log_probs[:, 0], -1.0))
+            n_worst = min(n_worst, int(wrong.sum()))
+            if n_worst == 0:
+                return
+        else:
+            error = ((out.rgb.detach() - target_rgb) ** 2).sum(-1)  # [n_rays]
+        worst = error.topk(n_worst).indices
         r = self.rays
         t_min, t_stop = r.t_min[idx][worst], t_stop[worst]
         t_end = torch.minimum(torch.maximum(out.depth.detach()[worst], t_min), t_stop)
