@@ -140,7 +140,9 @@ class SamplingConfig:
     grid_reopen: float = 0.0
     grid_reopen_until: float = 0.5
     # which rays re-open: "colour", the largest colour error; "labels", among the rays whose rendered
-    # class is wrong, the largest cross-entropy (a thin object's pixels render the wall behind it)
+    # class is wrong, the largest cross-entropy (a thin object's pixels render the wall behind it).
+    # "labels" measured and left off too: lower mIoU on two of three rooms, builds 1.26-1.29x, one
+    # diverged (docs/suite_reopen_labels.md)
     grid_reopen_by: str = "colour"
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
