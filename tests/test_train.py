@@ -556,10 +556,11 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
     r = trainer.rays
     idx = torch.nonzero(r.channels >= 0).squeeze(1)[:64]
     channels = r.channels[idx]
-    n_channels = int(r.channels.max()) + 1
-    log_probs = torch.log_softmax(10.0 * torch.nn.functional.one_hot(channels, max(n_channels, 2)).float(), -1)
+    n_channels = max(int(r.channels.max()) + 1, 2)
+    right = torch.log_softmax(10.0 * torch.nn.functional.one_hot(channels, n_channels).float(), -1)  # every class right
     wrong = torch.tensor([3, 17, 40])
-    log_probs[wrong] = log_probs[wrong].roll(1, dims=-1)  # these three render another class
+    log_probs = right.clone()
+    log_probs[wrong] = right[wrong].roll(1, dims=-1)  # these three render another class
     t_stop = r.t_max[idx]
     depth = 0.5 * (r.t_min[idx] + t_stop)
     out = SimpleNamespace(rgb=torch.zeros(64, 3), depth=depth, class_log_probs=log_probs)
@@ -573,7 +574,5 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
     assert opened.any() and torch.equal(opened, trainer.grid.bits)
 
     empty()
-    right = SimpleNamespace(rgb=out.rgb, depth=depth, class_log_probs=torch.log_softmax(
-        10.0 * torch.nn.functional.one_hot(channels, max(n_channels, 2)).float(), -1))
-    trainer._reopen_worst(right, torch.ones(64, 3), idx, t_stop)
+    trainer._reopen_worst(SimpleNamespace(rgb=out.rgb, depth=depth, class_log_probs=right), torch.ones(64, 3), idx, t_stop)
     assert not trainer.grid.bits.any()

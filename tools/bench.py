@@ -99,9 +99,6 @@ VARIANTS: dict[str, dict] = {
     "warmup-128": {"sampling": {"grid_warmup": 128}},
     "warmup-128-seed-1": {"sampling": {"grid_warmup": 128}, "train": {"seed": 1}},
     "warmup-128-seed-2": {"sampling": {"grid_warmup": 128}, "train": {"seed": 2}},
-    "warmup-16": {"sampling": {"grid_warmup": 16}},
-    "warmup-16-seed-1": {"sampling": {"grid_warmup": 16}, "train": {"seed": 1}},
-    "warmup-16-seed-2": {"sampling": {"grid_warmup": 16}, "train": {"seed": 2}},
     # the same build with another training seed (`train.seed`, default 0: initial weights, rays drawn)
     "seed-1": {"train": {"seed": 1}},
     "seed-2": {"train": {"seed": 2}},

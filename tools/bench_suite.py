@@ -39,7 +39,6 @@ VARIANTS: dict[str, dict] = {
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
     "warmup-128": {"sampling": {"grid_warmup": 128}},  # every grid cell marched for the first 128 steps
-    "warmup-16": {"sampling": {"grid_warmup": 16}},
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
@@ -93,7 +92,6 @@ NOTES: dict[str, str] = {
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
-    "warmup-16": "the density grid's first refresh after 16 training steps (`sampling.grid_warmup` 16)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
@@ -133,8 +131,6 @@ DEPTH_NOTES: dict[str, str] = {
 SEEDS = (1, 2)
 for _seed in SEEDS:
     VARIANTS[f"seed-{_seed}"] = {"train": {"seed": _seed}}
-    VARIANTS[f"warmup-128-seed-{_seed}"] = {"sampling": {"grid_warmup": 128}, "train": {"seed": _seed}}
-    VARIANTS[f"warmup-16-seed-{_seed}"] = {"sampling": {"grid_warmup": 16}, "train": {"seed": _seed}}
     VARIANTS[f"margin-0.05-seed-{_seed}"] = {"train": {"free_margin": 0.05, "seed": _seed}}
     VARIANTS[f"depth-bg-scene-seed-{_seed}"] = {"train": {"depth_background": "scene", "seed": _seed}}
     VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
