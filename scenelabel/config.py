@@ -144,6 +144,12 @@ class SamplingConfig:
     # "labels" measured and left off too: lower mIoU on two of three rooms, builds 1.26-1.29x, one
     # diverged (docs/suite_reopen_labels.md)
     grid_reopen_by: str = "colour"
+    # each training step adds this many rays, drawn class by class from the training labels (a rare
+    # class's pixels as often as a common one's), that sample every marching step whatever the grid
+    # holds, until grid_open_until of the run: a thin object whose cells the grid emptied before the
+    # field had learnt it gets a gradient, and its cells re-open once the field holds density there (0: off)
+    grid_open_rays: int = 0
+    grid_open_until: float = 0.5
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -157,7 +163,7 @@ class SamplingConfig:
     # The depth term still places a ray's transparent rest at the box's far side
     depth_ray_end: float = 2.0
     # training evaluates a ray's samples in order and stops where its transmittance falls below this
-    # (render.marcher.render_rays' min_trans; nerfacc's early_stop_eps): what lies behind an opaque
+    # (render.marcher.Skipping's min_trans; nerfacc's early_stop_eps): what lies behind an opaque
     # surface gets no gradient worth the work (0: every sample in an occupied cell)
     train_min_trans: float = 1e-4
     # rays per chunk when rendering outside training: a 160x120 view in one chunk (the early-stop marcher
@@ -183,7 +189,9 @@ class SamplingConfig:
         decay = self.grid_decay
         if decay != AUTO and (isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1)):
             raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
-        for name in ("grid_reopen", "grid_reopen_until"):
+        if isinstance(self.grid_open_rays, bool) or not (isinstance(self.grid_open_rays, int) and self.grid_open_rays >= 0):
+            raise ConfigError(f"sampling.grid_open_rays must be an integer >= 0, got {self.grid_open_rays!r}")
+        for name in ("grid_reopen", "grid_reopen_until", "grid_open_until"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0 <= value <= 1):
                 raise ConfigError(f"sampling.{name} must be a fraction in [0, 1], got {value!r}")

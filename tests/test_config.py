@@ -90,6 +90,10 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"grid_reopen": -0.01}},
         {"sampling": {"grid_reopen_until": True}},
         {"sampling": {"grid_reopen_by": "depth"}},
+        {"sampling": {"grid_open_rays": -1}},
+        {"sampling": {"grid_open_rays": 0.5}},
+        {"sampling": {"grid_open_rays": True}},
+        {"sampling": {"grid_open_until": 2.0}},
         {"sampling": {"train_min_trans": float("nan")}},
         {"sampling": {"train_min_trans": True}},
         {"train": {"background": "blue"}},
@@ -112,7 +116,7 @@ def test_unknown_keys_and_presets_are_errors():
     ],
 )
 def test_unknown_choices_are_errors(overrides):
-    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background|train_min_trans|grid_reopen"):
+    with pytest.raises(ConfigError, match="choose one of|steps|time_budget|focal_gamma|distortion_weight|solid_weight|solid_depth_steps|depth_ray_end|grid_decay|grid_from_training|depth_carve_until|background|distortion_start|free_margin|depth_background|train_min_trans|grid_reopen|grid_open"):
         preset("fast", overrides)
 
 

@@ -10,6 +10,7 @@ from scenelabel.geometry.warps import BoxWarp
 from scenelabel.render.marcher import (
     CompositeOptions,
     Marching,
+    Skipping,
     ray_intervals,
     render_rays,
     render_rays_early_stop,
@@ -140,6 +141,31 @@ def test_render_rays_evaluates_only_intervals_of_length_in_occupied_space():
     assert none.n_evaluated == 0 and torch.isfinite(none.rgb).all() and torch.isfinite(none.depth).all()
 
 
+def test_open_rays_sample_every_step_and_the_others_only_occupied_ones():
+    """``open_rays``: those rays render as if every cell were occupied, the others as the grid says,
+    in one call (training's class-balanced rays through cells the grid emptied)."""
+    o, d, t_min, t_max = rays()
+    opened = torch.arange(len(o)) % 4 == 1
+    marching = Marching(0.05, 64)
+    mixed = render_rays(SlabField(sigma=4.0), not_left_half, o, d, t_min, t_max, marching, skipping=Skipping(open_rays=opened))
+    every = render_rays(SlabField(sigma=4.0), every_cell, o, d, t_min, t_max, marching)
+    grid = render_rays(SlabField(sigma=4.0), not_left_half, o, d, t_min, t_max, marching)
+    assert (mixed.rgb[opened] - grid.rgb[opened]).abs().max() > 1e-3  # the haze in the left half shows
+    for name in ("rgb", "depth", "opacity", "class_log_probs"):
+        torch.testing.assert_close(getattr(mixed, name)[opened], getattr(every, name)[opened])
+        torch.testing.assert_close(getattr(mixed, name)[~opened], getattr(grid, name)[~opened])
+    assert mixed.n_evaluated == every.n_evaluated - _skipped(o, d, t_min, t_max, ~opened) > grid.n_evaluated
+
+
+def _skipped(o, d, t_min, t_max, which):
+    """Samples of the rays ``which`` whose middle lies in not_left_half's empty half."""
+    n = 0
+    for a, b, origin, direction in zip(t_min[which].tolist(), t_max[which].tolist(), o[which], d[which]):
+        middles = interval_middles(a, b, 0.05, 64)
+        n += int((~not_left_half(origin + middles[:, None] * direction)).sum())
+    return n
+
+
 def test_early_stop_with_zero_threshold_is_the_full_composite():
     for rendering in ("probs", "scores"):
         field = SlabField(sigma=30.0, semantic_rendering=rendering)
@@ -263,7 +289,7 @@ def test_training_stop_skips_samples_behind_opaque_and_keeps_answer_and_gradient
     outs, grads, calls = [], [], []
     for stop in (0.0, min_trans):
         field = LearntSlab(sigma=200.0)  # opaque within a few samples of x = 0.2
-        out = render_rays(field, every_cell, o, d, t_min, t_max, marching, jitter, min_trans=stop)
+        out = render_rays(field, every_cell, o, d, t_min, t_max, marching, jitter, skipping=Skipping(min_trans=stop))
         (out.rgb.sum() + out.depth.sum() + out.class_log_probs.exp()[:, 0].sum()).backward()
         outs.append(out), grads.append(float(field.scale.grad)), calls.append(field.calls)
     full, stopped = outs
@@ -291,11 +317,11 @@ def test_training_stop_evaluates_every_sample_of_a_ray_that_stays_clear():
         options = CompositeOptions(with_rgb=with_rgb)
         full = render_rays(SlabField(sigma=0.0, haze=0.5), every_cell, o, d, t_min, t_max, marching, None, options)
         clear = render_rays(SlabField(sigma=0.0, haze=0.5), every_cell, o, d, t_min, t_max, marching, None, options,
-                            min_trans=1e-4)
+                            Skipping(1e-4))
         assert clear.n_evaluated == full.n_evaluated > 100 * len(o)
         for name in ("rgb", "depth", "opacity", "class_log_probs"):
             torch.testing.assert_close(getattr(clear, name), getattr(full, name), rtol=0, atol=1e-6)
-    empty = render_rays(SlabField(sigma=1.0), every_cell, o, d, t_max + 1, t_max, marching, min_trans=1e-4)
+    empty = render_rays(SlabField(sigma=1.0), every_cell, o, d, t_max + 1, t_max, marching, skipping=Skipping(1e-4))
     assert empty.n_evaluated == 0 and float(empty.opacity.max()) == 0.0
 
 
@@ -307,7 +333,7 @@ def test_training_stop_finite_at_extreme_densities():
     for sigma in (0.0, 1e-8, 1e3, 1e8):
         full = render_rays(SlabField(sigma=sigma), every_cell, o, d, t_min, t_max, marching)
         for min_trans in (1e-12, 1e-4, 0.5):
-            out = render_rays(SlabField(sigma=sigma), every_cell, o, d, t_min, t_max, marching, min_trans=min_trans)
+            out = render_rays(SlabField(sigma=sigma), every_cell, o, d, t_min, t_max, marching, skipping=Skipping(min_trans))
             for name in ("rgb", "depth", "opacity", "class_log_probs"):
                 assert torch.isfinite(getattr(out, name)).all(), (sigma, min_trans, name)
             torch.testing.assert_close(out.class_log_probs.exp().sum(-1), torch.ones(len(o)), rtol=0, atol=1e-5)

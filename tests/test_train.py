@@ -576,3 +576,42 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
     empty()
     trainer._reopen_worst(SimpleNamespace(rgb=out.rgb, depth=depth, class_log_probs=right), torch.ones(64, 3), idx, t_stop)
     assert not trainer.grid.bits.any()
+
+
+def test_class_balanced_rays_draw_each_labelling_class_alike():
+    """rays_by_class groups a pool by label (unlabelled rays left out); class_balanced_rays draws the
+    five rays of a rare class as often as the thousand of a common one, and every one of them."""
+    from scenelabel.train.trainer import class_balanced_rays, rays_by_class
+
+    channels = torch.cat([torch.zeros(1000, dtype=torch.long), torch.full((5,), 3), torch.full((50,), -1)])
+    pool = torch.arange(len(channels)) + 7  # ray indices, not positions
+    grouped = rays_by_class(channels, pool)
+    assert grouped[1].tolist() == [[0, 1000], [1000, 5]]
+    drawn = class_balanced_rays(grouped, 4000, torch.Generator().manual_seed(0))
+    labels = channels[drawn - 7]
+    assert (labels >= 0).all()
+    assert 0.45 < float((labels == 3).float().mean()) < 0.55
+    assert set(drawn[labels == 3].tolist()) == set(range(1007, 1012))
+    assert len(class_balanced_rays(grouped, 0, torch.Generator())) == 0
+
+
+@pytest.mark.parametrize("n_open", [0, 16])
+def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open):
+    """``sampling.grid_open_rays``: through a grid emptied before the step, the step's class-balanced
+    extra rays still sample (and so give the field a gradient there); without them nothing is
+    sampled; past ``sampling.grid_open_until`` of the run they are no longer added."""
+    config = preset("quick", {
+        "sampling": {"n_steps": 32, "grid_resolution": 16, "grid_open_rays": n_open, "grid_open_until": 0.5},
+        "train": {"steps": 10, "batch_rays": 64},
+        "output": {"write_map": False},
+    })
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    trainer.grid.update(lambda p: torch.zeros(len(p)), decay=0.0)
+    logged = trainer.train_step()  # step 0: before the grid's warm-up, no refresh
+    assert trainer.grid.occupied_fraction == 0.0
+    if n_open == 0:
+        assert logged["samples_per_ray"] == 0.0
+    else:  # 16 of 80 rays march every step of their segment in the box
+        assert 0.0 < logged["samples_per_ray"] <= 16 / 80 * trainer.marching.n_samples
+    trainer.state.step = 5  # half the run
+    assert trainer.train_step()["samples_per_ray"] == 0.0

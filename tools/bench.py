@@ -95,6 +95,10 @@ VARIANTS: dict[str, dict] = {
     "reopen-seed-2": {"sampling": {"grid_reopen": 0.01}, "train": {"seed": 2}},
     # ... or those whose rendered class is wrong (sampling.grid_reopen_by "labels")
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},
+    # each step adds N class-balanced rays that march every cell, whatever the grid holds (sampling.grid_open_rays)
+    "open-32": {"sampling": {"grid_open_rays": 32}},
+    "open-32-seed-1": {"sampling": {"grid_open_rays": 32}, "train": {"seed": 1}},
+    "open-32-seed-2": {"sampling": {"grid_open_rays": 32}, "train": {"seed": 2}},
     # every density-grid cell marched for the first N steps (sampling.grid_warmup)
     "warmup-128": {"sampling": {"grid_warmup": 128}},
     "warmup-128-seed-1": {"sampling": {"grid_warmup": 128}, "train": {"seed": 1}},
@@ -240,7 +244,12 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
     overrides["output"] = {"write_map": False}
     config = preset(preset_name, overrides)
     t0 = time.perf_counter()
-    result = build(scene_dir, Path(workdir) / f"{scene_name}-{preset_name}", config, progress=False)
+    try:
+        result = build(scene_dir, Path(workdir) / f"{scene_name}-{preset_name}", config, progress=False)
+    except Exception as error:  # e.g. a diverged build: a row that says so, and the run goes on
+        queue.put({"scene": scene_name, "preset": preset_name, "variant": spec["variant"], "time_budget": budget,
+                   "failed": f"{type(error).__name__}: {error}"})
+        return
     build_seconds = time.perf_counter() - t0
     field: SemanticField = result.field
     queries = _time_queries(field, SCENES[scene_name][2]) if spec.get("queries", True) else {}
@@ -342,6 +351,9 @@ def _baked_table(rows: list[dict]) -> list[str]:
 
 
 def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None) -> None:
+    """The document; builds that raised (rows with "failed") are listed apart, in no table, pick or target."""
+    failed = [r for r in rows if "failed" in r]
+    rows = [r for r in rows if "failed" not in r]
     lines = [
         "# Benchmarks",
         "",
@@ -405,10 +417,13 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
             "",
         ]
         lines += [f"- {line}" for line in speedup]
+    if failed:
+        lines += ["", "Builds that failed:", ""]
+        lines += [f"- {r['scene']} / {r['preset']} [{r['variant']}]: {r['failed']}" for r in failed]
     lines += ["", f"Raw results: `{path.with_suffix('.json').name}`.", ""]
     lines += _kept_sections(path)
     path.write_text("\n".join(lines))
-    path.with_suffix(".json").write_text(json.dumps(rows, indent=2))
+    path.with_suffix(".json").write_text(json.dumps(rows + failed, indent=2))
 
 
 KEPT_SECTIONS = ("bench_ddp", "bench_real", "bench_map_export")
@@ -511,7 +526,7 @@ def target_lines(rows: list[dict]) -> list[str]:
 
 def _paper_best(rows: list[dict], scene: str) -> dict | None:
     """The `paper` preset's longest run on ``scene`` (variant "-"), or None."""
-    paper = [r for r in rows if (r["scene"], r["preset"], r["variant"]) == (scene, "paper", "-") and r["miou"] is not None]
+    paper = [r for r in rows if (r["scene"], r["preset"], r["variant"]) == (scene, "paper", "-") and r.get("miou") is not None]
     return max(paper, key=lambda r: r["train_seconds"]) if paper else None
 
 
@@ -602,7 +617,7 @@ def main() -> None:
         row = run_one(spec)
         print(json.dumps(row), flush=True)
         rows.append(row)
-        if not row["budget_reached"]:
+        if not row.get("budget_reached", True):  # a failed build says nothing of larger budgets
             finished_early.add(key)
     for spec in probe_specs(rows, args):  # the speed-up target's run (after paper's, whose time sets its budget)
         spec["queries"] = False
@@ -612,7 +627,7 @@ def main() -> None:
     out = Path(args.out)
     plot = out.with_suffix(".png") if args.plot else None
     if plot is not None:
-        write_plot(rows, plot)
+        write_plot([r for r in rows if "failed" not in r], plot)
     write_markdown(rows, out, command.strip(), plot)
     print(f"wrote {out}")
 

@@ -33,6 +33,7 @@ from scenelabel.render.volume import (
 __all__ = [
     "Marching",
     "CompositeOptions",
+    "Skipping",
     "RayBundleOutput",
     "ray_intervals",
     "render_rays",
@@ -79,6 +80,27 @@ class CompositeOptions:
 
 
 NO_OPTIONS = CompositeOptions()
+
+
+@dataclass(frozen=True)
+class Skipping:
+    """Which of the samples in occupied cells :func:`render_rays` evaluates (training's choices).
+
+    ``min_trans``: 0 evaluates every sample in an occupied cell; above 0, a pass without
+    gradients finds each ray's samples behind the point where its transmittance falls below
+    ``min_trans`` (:func:`_samples_before_opaque`, from the density alone), and only those in front
+    are evaluated and composited (nerfacc's ``early_stop_eps`` in training). The dropped weights
+    sum to less than ``min_trans``, so the composite moves by less than that times its range, and so
+    does the gradient (T < ``min_trans`` scales it).
+    ``open_rays``: [n_rays] bool or None: rays whose samples count as occupied wherever they lie,
+    whatever the occupancy says (training: a thin object in cells the grid emptied gets a gradient).
+    """
+
+    min_trans: float = 0.0
+    open_rays: torch.Tensor | None = None  # [n_rays] bool
+
+
+NO_SKIPPING = Skipping()
 
 
 @dataclass
@@ -133,8 +155,7 @@ def render_rays(
     marching: Marching,
     jitter: torch.Tensor | None = None,
     options: CompositeOptions = NO_OPTIONS,
-    *,
-    min_trans: float = 0.0,
+    skipping: Skipping = NO_SKIPPING,
 ) -> RayBundleOutput:
     """March rays from t_min to t_max and composite the field's outputs.
 
@@ -149,25 +170,25 @@ def render_rays(
         marching: the step (uniform spacing) and samples per ray.
         jitter: [n_rays] in [0, 1) (training) or None.
         options: background, colour or not, detached class weights (:class:`CompositeOptions`).
-        min_trans: 0 evaluates every sample in an occupied cell; above 0, a pass without
-            gradients finds each ray's samples behind the point where its transmittance falls
-            below ``min_trans`` (:func:`_samples_before_opaque`, from the density alone), and only
-            those in front are evaluated and composited (nerfacc's ``early_stop_eps`` in
-            training). The dropped weights sum to less than ``min_trans``, so the composite moves by
-            less than that times its range, and so does the gradient (T < ``min_trans`` scales it).
+        skipping: the transmittance below which a ray's samples are dropped, and the rays that
+            ignore ``occupancy`` (:class:`Skipping`; default: neither).
     The class composite follows ``field.config.semantic_rendering``: "probs" (eq. 7) or
     "scores" (softmax after compositing).
     Returns:
         RayBundleOutput; ``n_evaluated`` counts the samples whose density was evaluated (with
-        ``min_trans``: in the pass without gradients; the field then runs again on those kept).
+        ``skipping.min_trans``: in the pass without gradients; the field then runs again on those kept).
     """
+    min_trans, open_rays = skipping.min_trans, skipping.open_rays
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, jitter)  # [n_rays, S]
     # [n_rays, S] is as wide as the longest ray: the grid is read only at the intervals of positive length
     rows, cols = (t_ends > t_starts).nonzero(as_tuple=True)  # row-major: each ray's samples in order
     t_mids = 0.5 * (_take(t_starts, rows, cols) + _take(t_ends, rows, cols))  # [m]
     points = origins.index_select(0, rows) + t_mids[:, None] * directions.index_select(0, rows)  # [m, 3]
-    keep = occupancy(points).nonzero().squeeze(1)  # [k]
+    occupied = occupancy(points)  # [m]
+    if open_rays is not None:
+        occupied = occupied | open_rays.index_select(0, rows)
+    keep = occupied.nonzero().squeeze(1)  # [k]
     rows, cols = rows.index_select(0, keep), cols.index_select(0, keep)
     points = points.index_select(0, keep)
     n_evaluated = len(rows)

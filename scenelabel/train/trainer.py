@@ -38,6 +38,7 @@ from scenelabel.render.marcher import (
     CompositeOptions,
     Marching,
     RayBundleOutput,
+    Skipping,
     ray_intervals,
     render_rays,
     render_rays_hierarchical,
@@ -201,6 +202,26 @@ def rays_for_views(
     )
 
 
+def rays_by_class(channels: torch.Tensor, rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``rays`` [n] (indices) grouped by their label ``channels`` [n] (-1: unlabelled, left out):
+    (the labelled rays ordered by channel [m], each labelling channel's [start, count] in it [C, 2])."""
+    labelled = channels >= 0
+    order = torch.argsort(channels[labelled], stable=True)
+    _, counts = torch.unique_consecutive(channels[labelled][order], return_counts=True)
+    starts = torch.cumsum(counts, 0) - counts
+    return rays[labelled][order], torch.stack([starts, counts], -1)
+
+
+def class_balanced_rays(grouped: tuple[torch.Tensor, torch.Tensor], n: int, generator: torch.Generator) -> torch.Tensor:
+    """[n] rays drawn from ``grouped`` (:func:`rays_by_class`) class by class: each draw picks a
+    labelling class uniformly, then one of its rays, so a lamp's few pixels come up as often as the walls'."""
+    rays, spans = grouped
+    which = torch.randint(len(spans), (n,), generator=generator)
+    start, count = spans[which].to(rays.device).unbind(-1)
+    within = (torch.rand(n, generator=generator).to(rays.device) * count).long().clamp_(max=count - 1)
+    return rays[start + within]
+
+
 @dataclass
 class TrainState:
     step: int = 0
@@ -227,7 +248,7 @@ class TrainingRender(nn.Module):
         self.model = model
         self.grid = grid
         self.marching = marching
-        self.min_trans = min_trans  # render_rays': a ray stops being evaluated below this transmittance
+        self.min_trans = min_trans  # Skipping's: a ray stops being evaluated below this transmittance
         self.coarse = coarse
         self.hierarchical = hierarchical
 
@@ -241,6 +262,7 @@ class TrainingRender(nn.Module):
         fine_jitter: torch.Tensor | None = None,  # [n_rays, n_fine], with a coarse field
         options: CompositeOptions = CompositeOptions(),
         solid_offsets: torch.Tensor | None = None,  # [n_rays] distances past t_opaque, or None
+        open_rays: torch.Tensor | None = None,  # [n_rays] bool: rays that ignore the grid, or None
     ) -> tuple[RayBundleOutput, RayBundleOutput | None, torch.Tensor | None]:
         """(the field's render, the coarse field's render or None, σ [k] at the solid-interior
         points ``t_opaque + solid_offsets`` of the rays that became opaque inside the box, or None)."""
@@ -248,7 +270,7 @@ class TrainingRender(nn.Module):
         if self.coarse is None:
             out = render_rays(
                 self.model, self.grid, origins, directions, t_min, t_max, self.marching, jitter, options,
-                min_trans=self.min_trans,
+                Skipping(self.min_trans, open_rays),
             )
         else:
             out, coarse_out = render_rays_hierarchical(
@@ -307,6 +329,8 @@ class Trainer:
         self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
+        grouped = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
+        self.rays_by_class = grouped if sc.grid_open_rays > 0 and len(grouped[1]) > 0 else None  # sampling.grid_open_rays
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
         self.render = TrainingRender(
             self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
@@ -448,28 +472,35 @@ class Trainer:
         self._set_lr()
         pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
         idx = self.ray_pool[pick.to(self.device)]
-        jitter = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+        open_rays = None
+        if self.rays_by_class is not None and self.coarse is None and self.progress() < sc.grid_open_until:
+            extra = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
+            open_rays = torch.arange(len(idx) + len(extra), device=self.device) >= len(idx)
+            idx = torch.cat([idx, extra])
+        n_rays = len(idx)
+        jitter = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
         fine_jitter = None
         if self.coarse is not None:
-            fine_jitter = torch.rand(self.batch_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
+            fine_jitter = torch.rand(n_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
         solid_offsets = None
         solid_weight = self.solid_weight
         if solid_weight > 0 and self.progress() >= SOLID_START:
-            u = torch.rand(self.batch_rays, generator=self.ray_generator).to(self.device)
+            u = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
             solid_offsets = u * tc.solid_depth_steps * self.marching.step
         r = self.rays
         background = self.background
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
-            background = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
+            background = torch.rand(n_rays, 3, generator=self.ray_generator).to(self.device)
         target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
         if target_depth is not None and self.depth_background == DEPTH_RANDOM_BACKGROUND:
-            colours = torch.rand(self.batch_rays, 3, generator=self.ray_generator).to(self.device)
+            colours = torch.rand(n_rays, 3, generator=self.ray_generator).to(self.device)
             background = backgrounds_for_rays(background, torch.isfinite(target_depth), colours)
         free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step, self.free_margin)
         t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
         out, coarse_out, solid_sigmas = self.render(
             r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
             CompositeOptions(background, True, tc.detach_semantic_weights, free_until), solid_offsets=solid_offsets,
+            open_rays=open_rays,
         )
         if sc.grid_from_training and out.sample_points is not None:  # each rank its own; the refresh keeps rank 0's
             self.grid.observe(out.sample_points, out.sample_sigmas)
@@ -518,7 +549,7 @@ class Trainer:
             "distortion": distortion_mean,
             "depth": depth_mean,
             "psnr": -10.0 * math.log10(max(mse_mean, 1e-10)),
-            "samples_per_ray": n_evaluated / self.batch_rays,
+            "samples_per_ray": n_evaluated / n_rays,
         }
 
     def state_dict(self) -> dict:
