@@ -96,9 +96,9 @@ VARIANTS: dict[str, dict] = {
     # ... or those whose rendered class is wrong (sampling.grid_reopen_by "labels")
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},
     # each step adds N class-balanced rays that march every cell, whatever the grid holds (sampling.grid_open_rays)
-    "open-32": {"sampling": {"grid_open_rays": 32}},
-    "open-32-seed-1": {"sampling": {"grid_open_rays": 32}, "train": {"seed": 1}},
-    "open-32-seed-2": {"sampling": {"grid_open_rays": 32}, "train": {"seed": 2}},
+    "open-16": {"sampling": {"grid_open_rays": 16}},
+    "open-16-seed-1": {"sampling": {"grid_open_rays": 16}, "train": {"seed": 1}},
+    "open-16-seed-2": {"sampling": {"grid_open_rays": 16}, "train": {"seed": 2}},
     # every density-grid cell marched for the first N steps (sampling.grid_warmup)
     "warmup-128": {"sampling": {"grid_warmup": 128}},
     "warmup-128-seed-1": {"sampling": {"grid_warmup": 128}, "train": {"seed": 1}},
