@@ -329,8 +329,9 @@ class Trainer:
         self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
-        grouped = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
-        self.rays_by_class = grouped if sc.grid_open_rays > 0 and len(grouped[1]) > 0 else None  # sampling.grid_open_rays
+        self.rays_by_class = None  # sampling.grid_open_rays: the pool by label, where any ray has one
+        if sc.grid_open_rays > 0 and bool((self.rays.channels[self.ray_pool] >= 0).any()):
+            self.rays_by_class = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
         self.render = TrainingRender(
             self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
