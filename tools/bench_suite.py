@@ -90,12 +90,14 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-open-16": {"capture": "phone-depth", "sampling": {"grid_open_rays": 16}},
     "phone-depth-keep-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 1.0, "depth_ray_end": 2.0}},
 }
+OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the training labels that sample every marching "
+             "step whatever the density grid holds, for the first half of the run (`sampling.grid_open_rays` {n}; default 0)")
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
-    **{f"open-{n}": f"each training step adds {n} rays drawn class by class from the training labels that sample every marching step whatever the density grid holds, for the first half of the run (`sampling.grid_open_rays` {n}; default 0)" for n in (16, 32, 64)},
+    **{f"open-{n}": OPEN_NOTE.format(n=n) for n in (16, 32, 64)},
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
@@ -127,7 +129,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
-    "phone-depth-open-16": "each training step adds 16 rays drawn class by class from the training labels that sample every marching step whatever the density grid holds, for the first half of the run (`sampling.grid_open_rays` 16)",
+    "phone-depth-open-16": OPEN_NOTE.format(n=16),
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",

@@ -330,8 +330,9 @@ class Trainer:
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
         self.rays_by_class = None  # sampling.grid_open_rays: the pool by label, where any ray has one
-        if sc.grid_open_rays > 0 and bool((self.rays.channels[self.ray_pool] >= 0).any()):
-            self.rays_by_class = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
+        if sc.grid_open_rays > 0:
+            grouped = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
+            self.rays_by_class = grouped if len(grouped[1]) > 0 else None
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
         self.render = TrainingRender(
             self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
