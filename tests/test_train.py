@@ -41,6 +41,33 @@ def test_learning_rate_1000x_too_high_is_detected(scene, tmp_path):
     assert load_checkpoint(tmp_path / "out").step < 400  # an earlier checkpoint, not the failed state
 
 
+def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_half_the_rate(scene, tmp_path, monkeypatch):
+    import scenelabel.train.trainer as train
+
+    real_mse, real_step = train.photometric_mse, train.Trainer.train_step
+    first_pass = {"step": 0, "on": True}  # until a rollback, each step is taken once
+
+    def counted(self):
+        first_pass["on"] = first_pass["on"] and self.state.step == first_pass["step"]
+        first_pass["step"] += 1
+        return real_step(self)
+
+    def spiking(rgb, target):  # from step 250 of the first pass on, far above the mean colour's error
+        return real_mse(rgb, target) + (1.0 if first_pass["on"] and first_pass["step"] > 250 else 0.0)
+
+    monkeypatch.setattr(train.Trainer, "train_step", counted)
+    monkeypatch.setattr(train, "photometric_mse", spiking)
+    config = preset("quick", {"train": {"steps": 400}, "output": {"write_map": False, "write_renders": False}})
+    metrics = build(scene, tmp_path / "out", config, progress=False).metrics
+    assert metrics["steps"] == 400  # the build finished
+    (rollback,) = metrics["rollbacks"]
+    assert 250 <= rollback["diverged_at"] < 270  # a few steps of it tip the smoothed error over
+    assert rollback["resumed_from"] == 200 and rollback["lr_factor"] == 0.5  # the last copy before the spike
+    groups = load_checkpoint(tmp_path / "out").optimizer["param_groups"]
+    assert [g["lr_scale"] for g in groups] == [0.5, 0.5]  # kept for a resumed build
+    assert metrics["miou"] > 0.8
+
+
 def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch):
     import scenelabel.train.trainer as train
 

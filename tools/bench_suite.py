@@ -281,6 +281,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "train_seconds": m["train_seconds"],
         "steps": m["steps"],
         "steps_per_second": m["steps_per_second"],
+        "rollbacks": m.get("rollbacks", []),
         "samples_per_ray": float(np.mean([h["samples_per_ray"] for h in m["history"][-4:]])),
         "psnr": m.get("psnr"),
         "miou": m.get("miou"),
@@ -531,6 +532,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
         lines += [*_aggregate(rows, variant), ""]
     if failed:
         lines += ["## Builds that failed", "", *(f"- {r['scene']} [{r['variant']}]: {r['failed']}" for r in failed), ""]
+    lines += _rollbacks(rows)
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
@@ -539,6 +541,19 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     lines += ["Bounds chosen per room: " + "; ".join(sorted({r["aabb_source"].split(" (")[0] for r in rows})) + ".", ""]
     lines += _per_class(rows)
     path.write_text("\n".join(lines) + "\n")
+
+
+def _rollbacks(rows: list[dict]) -> list[str]:
+    """The builds whose training diverged and resumed from an earlier state (scenelabel.train.divergence)."""
+    rolled = [r for r in rows if r.get("rollbacks")]
+    lines = ["## Rollbacks", ""]
+    if not rolled:
+        return [*lines, "No build diverged (scenelabel.train.divergence: none resumed from an earlier state).", ""]
+    for r in rolled:
+        told = ", ".join(f"diverged at step {b['diverged_at']}, resumed from step {b['resumed_from']} at {b['lr_factor']:g} "
+                         "times the learning rate" for b in r["rollbacks"])
+        lines.append(f"- {r['scene']} [{r['variant']}]: {told}")
+    return [*lines, ""]
 
 
 def _seed_groups(rows: list[dict]) -> dict[tuple[str, str], list[dict]]:

@@ -473,6 +473,8 @@ def _training_metrics(trainer: Trainer) -> dict:
         "steps": state.step,
         "train_seconds": state.elapsed,
         "steps_per_second": state.step / max(state.elapsed, 1e-9),
+        # each time the run diverged and resumed from an earlier state (scenelabel.train.divergence)
+        "rollbacks": trainer.guard.rollbacks,
         "world_size": context.world_size,
         "rank": context.rank,
         "rays_per_step": context.world_size * trainer.batch_rays,

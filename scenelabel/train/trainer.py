@@ -45,6 +45,7 @@ from scenelabel.render.marcher import (
 )
 from scenelabel.render.sampling import DensityGrid
 from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
+from scenelabel.train.divergence import Diverged, DivergenceGuard
 from scenelabel.train.losses import (
     class_balance_weights,
     composite_target,
@@ -58,18 +59,6 @@ from scenelabel.train.losses import (
 )
 
 __all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
-
-DIVERGENCE_CHECK_STEP = 200
-"""From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
-as the mean training colour (the colour variance) has diverged and is stopped. A room of plain walls
-(the mean colour already a good guess) trained on sensor depth can still sit there at step 100
-(gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200). A learning rate 100 times
-too high sat just above it on the toy scene on one machine (1.14 times at step 200) and was not
-caught on another (2026-11-27, the same code): the check catches runs that fail
-clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
-
-MSE_EMA = 0.1
-"""Weight of the newest step in the smoothed MSE used by the divergence check."""
 
 TV_SLAB = 16
 """Vertex rows (first grid axis) of the random slab whose total variation is added each step
@@ -388,18 +377,25 @@ class Trainer:
         pool_alpha = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool]
         random_background = tc.background == RANDOM_BACKGROUND
         pool_rgb = composite_target(self.rays.rgb[self.ray_pool], pool_alpha, 0.5 if random_background else self.background)
-        self.mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
+        mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
         if pool_alpha is not None and random_background:
-            self.mean_colour_mse += float(((1.0 - pool_alpha) ** 2).mean()) / 12.0
-        self.mse_ema: float | None = None
+            mean_colour_mse += float(((1.0 - pool_alpha) ** 2).mean()) / 12.0
+        self.guard = DivergenceGuard(mean_colour_mse)
 
-    def _check_divergence(self, mse: float) -> None:
-        self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
-        if self.state.step >= DIVERGENCE_CHECK_STEP and self.mse_ema > self.mean_colour_mse:
-            raise TrainingError(
-                f"training diverged at step {self.state.step}: the photometric error ({self.mse_ema:.4g}) is worse "
-                f"than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
-            )
+    def _roll_back(self, diverged: Diverged) -> str:
+        """Resume from the guard's last clearly learning state at a lower learning rate (the time
+        spent stays spent); raises TrainingError when the guard gives up. Returns what happened."""
+        step, state = self.guard.roll_back(diverged)
+        elapsed = self.state.elapsed
+        self.load_state_dict(state)
+        self.state.elapsed = elapsed
+        factor = self.guard.rollbacks[-1]["lr_factor"]
+        for group in self.optimizer.param_groups:  # saved with the optimizer: a resumed build keeps it
+            group["lr_scale"] = factor
+        return (
+            f"training diverged at step {diverged.step} (photometric error {diverged.mse_ema:.4g}, the mean colour's "
+            f"{self.guard.mean_colour_mse:.4g}): resumed from step {step} at {factor:g} times the learning rate"
+        )
 
     def _semantic_loss(self, class_log_probs: torch.Tensor, channels: torch.Tensor) -> torch.Tensor:
         tc = self.config.train
@@ -432,7 +428,7 @@ class Trainer:
     def _set_lr(self) -> None:
         factor = self.config.train.lr_final_ratio ** self.progress()
         for group, base in zip(self.optimizer.param_groups, self.base_lrs):
-            group["lr"] = base * factor
+            group["lr"] = base * factor * group.get("lr_scale", 1.0)
 
     def _reopen_worst(self, out, target_rgb: torch.Tensor, idx: torch.Tensor, t_stop: torch.Tensor) -> None:
         """Re-open the grid cells along this step's worst rays (``sampling.grid_reopen`` of them), from
@@ -536,7 +532,7 @@ class Trainer:
                 f"the loss became non-finite at step {step} (mse={mse_mean}, ce={ce_mean}); "
                 "the learning rate is probably too high for this scene"
             )
-        self._check_divergence(mse_mean)
+        self.guard.observe(self.state.step, mse_mean)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if tc.tv_weight > 0:
@@ -613,7 +609,13 @@ class Trainer:
                 if update_share() < threads and not told:  # other scenelabel jobs started (scenelabel._cores)
                     told = True  # once: the share then follows the jobs as they start and end
                     bar.write(f"step {self.state.step}: {share_summary()}; the share follows them as they start and end")
-                logs = self.train_step()
+                self.guard.keep(self.state.step, self.state_dict)
+                try:
+                    logs = self.train_step()
+                except Diverged as diverged:
+                    bar.write(self._roll_back(diverged))
+                    bar.n = self.state.step
+                    continue
                 elapsed = time.perf_counter() - start
                 if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
                     elapsed = float(all_reduce_mean(torch.tensor([elapsed], dtype=torch.float64, device=self.device))[0])

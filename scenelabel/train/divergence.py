@@ -1,0 +1,113 @@
+"""What a training run does when its photometric error climbs back to the mean colour's.
+
+Early in a build the field turns from fog into surfaces, and in some runs the photometric error
+climbs back to about the colour variance of the targets on the way, before it falls for good
+(probes with the check off: office-5x4 around step 200, with and without
+``sampling.grid_open_rays``). Which runs do so is chance: repeated runs of one build differ. A
+check that stops such a run can stop a build that would have finished (docs/suite_open.md: two
+builds stopped); one that never stops lets a learning rate 1000 times too high
+run to its end. So :class:`DivergenceGuard` keeps a copy of the last state that was clearly
+learning and, when the run diverges, hands it back to be resumed at a lower learning rate; only
+when that has not helped MAX_ROLLBACKS times does the build stop.
+Orchestration only: no maths here, and nothing here knows what a state holds.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Callable
+
+from scenelabel.errors import TrainingError
+
+__all__ = [
+    "DIVERGENCE_CHECK_STEP",
+    "Diverged",
+    "DivergenceGuard",
+    "HEALTHY_RATIO",
+    "MAX_ROLLBACKS",
+    "MSE_EMA",
+    "ROLLBACK_LR_FACTOR",
+    "SNAPSHOT_EVERY",
+]
+
+DIVERGENCE_CHECK_STEP = 200
+"""From this step on, a run whose smoothed photometric MSE is worse than predicting every pixel
+as the mean training colour (the colour variance) has diverged. A room of plain walls
+(the mean colour already a good guess) trained on sensor depth can still sit there at step 100
+(gallery-8x5 with phone depth: 1.01 times it, 0.14 times at step 200). A learning rate 100 times
+too high sat just above it on the toy scene on one machine (1.14 times at step 200) and was not
+caught on another (2026-11-27, the same code): the check catches runs that fail
+clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
+
+MSE_EMA = 0.1
+"""Weight of the newest step in the smoothed MSE used by the divergence check."""
+
+SNAPSHOT_EVERY = 100
+"""Steps between the copies of a clearly learning state (the copy costs one state dict's memory)."""
+
+HEALTHY_RATIO = 0.5
+"""A state is copied only while its smoothed MSE is at most this fraction of the mean colour's:
+clearly learning, not already on its way up (the initial state is always copied)."""
+
+ROLLBACK_LR_FACTOR = 0.5
+"""Each rollback multiplies the learning rate by this, for the rest of the run."""
+
+MAX_ROLLBACKS = 3
+"""Rollbacks before a diverging run stops with :class:`~scenelabel.errors.TrainingError`."""
+
+
+class Diverged(Exception):
+    """Raised by :meth:`DivergenceGuard.observe`: the run has diverged at ``step``."""
+
+    def __init__(self, step: int, mse_ema: float):
+        super().__init__(f"diverged at step {step}")
+        self.step = step
+        self.mse_ema = mse_ema
+
+
+class DivergenceGuard:
+    """Watches the smoothed photometric MSE of a run against the mean colour's, keeps the last
+    clearly learning state, and decides between a rollback and a stop.
+
+    Args:
+        mean_colour_mse: the MSE of predicting every training pixel as the mean training colour.
+    """
+
+    def __init__(self, mean_colour_mse: float):
+        self.mean_colour_mse = mean_colour_mse
+        self.mse_ema: float | None = None
+        self.snapshot: tuple[int, float | None, dict] | None = None  # (step, mse_ema then, a deep copy of the state)
+        self.rollbacks: list[dict] = []  # {"diverged_at", "resumed_from", "lr_factor"} per rollback
+
+    def keep(self, step: int, state_dict: Callable[[], dict]) -> None:
+        """Called before each step: every SNAPSHOT_EVERY steps, copies ``state_dict()`` if the run
+        is clearly learning (or has not started: the first call with no copy yet at step 0)."""
+        if step % SNAPSHOT_EVERY:
+            return
+        first = self.snapshot is None and step == 0
+        if first or (self.mse_ema is not None and self.mse_ema <= HEALTHY_RATIO * self.mean_colour_mse):
+            self.snapshot = (step, self.mse_ema, copy.deepcopy(state_dict()))
+
+    def observe(self, step: int, mse: float) -> None:
+        """Adds one step's MSE (the mean over data-parallel ranks: every rank decides alike) to
+        the smoothed error; raises :class:`Diverged` from DIVERGENCE_CHECK_STEP on where it is
+        worse than the mean colour's."""
+        self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
+        if step >= DIVERGENCE_CHECK_STEP and self.mse_ema > self.mean_colour_mse:
+            raise Diverged(step, self.mse_ema)
+
+    def roll_back(self, diverged: Diverged) -> tuple[int, dict]:
+        """(the step of the copied state, the copy) to resume from at ROLLBACK_LR_FACTOR times the
+        learning rate, the smoothed error set back to what it was then; raises TrainingError when
+        MAX_ROLLBACKS have not helped or no copy exists."""
+        if self.snapshot is None or len(self.rollbacks) >= MAX_ROLLBACKS:
+            tried = f" after {len(self.rollbacks)} rollbacks at lower learning rates" if self.rollbacks else ""
+            raise TrainingError(
+                f"training diverged at step {diverged.step}{tried}: the photometric error ({diverged.mse_ema:.4g}) is "
+                f"worse than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
+            )
+        step, self.mse_ema, state = self.snapshot
+        self.rollbacks.append(
+            {"diverged_at": diverged.step, "resumed_from": step, "lr_factor": ROLLBACK_LR_FACTOR ** (len(self.rollbacks) + 1)}
+        )
+        return step, copy.deepcopy(state)
