@@ -6,7 +6,6 @@ import torch
 from scenelabel import TrainingError
 from scenelabel.train.divergence import (
     DIVERGENCE_CHECK_STEP,
-    HEALTHY_RATIO,
     MAX_ROLLBACKS,
     MSE_EMA,
     ROLLBACK_LR_FACTOR,
@@ -18,14 +17,20 @@ from scenelabel.train.divergence import (
 MEAN_COLOUR = 0.02
 
 
-def run(guard: DivergenceGuard, mses, start: int = 0, state=None) -> int:
-    """Feeds one MSE a step from ``start`` as the trainer does (keep, then observe); the step reached."""
+def run(guard: DivergenceGuard, mses, start: int = 0) -> int:
+    """Feeds one MSE a step from ``start`` as the trainer does (keep, then observe), each step's
+    state a tensor holding its step; returns the step reached."""
     step = start
     for mse in mses:
-        guard.keep(step, lambda: {"w": torch.tensor([float(step)]) if state is None else state})
+        guard.keep(step, lambda: {"w": torch.tensor([float(step)])})
         guard.observe(step, mse)
         step += 1
     return step
+
+
+def kept_steps(guard: DivergenceGuard) -> list[int]:
+    assert all(float(state["w"]) == step for step, _, state in guard.snapshots)  # copies of that step's state
+    return [step for step, _, _ in guard.snapshots]
 
 
 def test_the_smoothed_error_is_an_exponential_average_checked_from_its_step():
@@ -44,21 +49,35 @@ def test_a_run_below_the_mean_colour_is_never_diverged():
     assert guard.rollbacks == []
 
 
-def test_copies_are_taken_every_snapshot_every_steps_only_while_clearly_learning():
+def test_the_two_newest_copies_are_kept_every_snapshot_every_steps_while_not_diverged():
     guard = DivergenceGuard(MEAN_COLOUR)
-    # the initial state is copied whatever its error; then only while the smoothed error is at
-    # most HEALTHY_RATIO of the mean colour's
-    run(guard, [0.9 * MEAN_COLOUR] * (SNAPSHOT_EVERY + 1))
-    assert guard.snapshot[0] == 0
-    step = run(guard, [0.99 * HEALTHY_RATIO * MEAN_COLOUR] * (2 * SNAPSHOT_EVERY - 1), start=SNAPSHOT_EVERY + 1)
-    assert guard.snapshot[0] == 2 * SNAPSHOT_EVERY
-    assert float(guard.snapshot[2]["w"]) == 2 * SNAPSHOT_EVERY
-    # the error climbs from step 3 x SNAPSHOT_EVERY on: the copy made before that step is the last
-    run(guard, [0.9 * MEAN_COLOUR] * (2 * SNAPSHOT_EVERY), start=step)
-    assert step == 3 * SNAPSHOT_EVERY and guard.snapshot[0] == 3 * SNAPSHOT_EVERY
+    run(guard, [2 * MEAN_COLOUR] * (SNAPSHOT_EVERY + 1))  # the initial state is copied whatever its error
+    assert kept_steps(guard) == [0]
+    step = run(guard, [0.5 * MEAN_COLOUR] * (3 * SNAPSHOT_EVERY - 1), start=SNAPSHOT_EVERY + 1)
+    assert step == 4 * SNAPSHOT_EVERY and kept_steps(guard) == [2 * SNAPSHOT_EVERY, 3 * SNAPSHOT_EVERY]
+    run(guard, [0.5 * MEAN_COLOUR] * SNAPSHOT_EVERY, start=step)
+    assert kept_steps(guard) == [3 * SNAPSHOT_EVERY, 4 * SNAPSHOT_EVERY]
+    guard.mse_ema = 1.01 * MEAN_COLOUR  # above the mean colour's: no copy
+    guard.keep(5 * SNAPSHOT_EVERY, lambda: {"w": torch.tensor([5.0 * SNAPSHOT_EVERY])})
+    assert kept_steps(guard) == [3 * SNAPSHOT_EVERY, 4 * SNAPSHOT_EVERY]
 
 
-def test_a_rollback_hands_back_an_untouched_copy_and_lowers_the_rate_each_time():
+def test_a_rollback_resumes_from_the_older_copy_with_its_smoothed_error():
+    guard = DivergenceGuard(MEAN_COLOUR)
+    step = run(guard, [0.1 * MEAN_COLOUR] * (2 * SNAPSHOT_EVERY + 1))
+    older = guard.snapshots[0]
+    assert [older[0], guard.snapshots[1][0]] == [SNAPSHOT_EVERY, 2 * SNAPSHOT_EVERY]
+    with pytest.raises(Diverged) as info:  # a climb within the newer copy's stretch
+        run(guard, [10 * MEAN_COLOUR] * SNAPSHOT_EVERY, start=step)
+    resumed, state = guard.roll_back(info.value)
+    assert resumed == SNAPSHOT_EVERY and float(state["w"]) == SNAPSHOT_EVERY
+    assert guard.mse_ema == older[1]  # not the first new step's error alone: the check stays smoothed
+    assert kept_steps(guard) == [SNAPSHOT_EVERY]  # the newer copy belonged to the run that diverged
+    guard.keep(SNAPSHOT_EVERY, lambda: {"w": torch.tensor([float(SNAPSHOT_EVERY)])})  # the resumed step: no twin
+    assert kept_steps(guard) == [SNAPSHOT_EVERY]
+
+
+def test_the_rate_falls_with_each_rollback_and_the_kept_copy_stays_untouched():
     live = {"w": torch.zeros(3)}
     guard = DivergenceGuard(MEAN_COLOUR)
     guard.keep(0, lambda: live)
@@ -70,20 +89,8 @@ def test_a_rollback_hands_back_an_untouched_copy_and_lowers_the_rate_each_time()
         assert guard.rollbacks[-1] == {
             "diverged_at": DIVERGENCE_CHECK_STEP + k, "resumed_from": 0, "lr_factor": ROLLBACK_LR_FACTOR**k,
         }
-        assert guard.mse_ema is None  # the smoothed error as it was at the copy (none yet at step 0)
     with pytest.raises(TrainingError, match=f"after {MAX_ROLLBACKS} rollbacks.*learning rate is probably too high"):
         guard.roll_back(Diverged(999, 2 * MEAN_COLOUR))
-
-
-def test_the_smoothed_error_goes_back_with_the_state():
-    guard = DivergenceGuard(MEAN_COLOUR)
-    run(guard, [0.1 * MEAN_COLOUR] * (SNAPSHOT_EVERY + 1))
-    kept = guard.snapshot[1]
-    assert guard.snapshot[0] == SNAPSHOT_EVERY and kept == pytest.approx(0.1 * MEAN_COLOUR)
-    with pytest.raises(Diverged) as info:
-        run(guard, [10 * MEAN_COLOUR] * DIVERGENCE_CHECK_STEP, start=SNAPSHOT_EVERY + 1)
-    guard.roll_back(info.value)
-    assert guard.mse_ema == kept  # not the first new step's error alone: the check stays smoothed
 
 
 def test_without_a_copy_a_diverged_run_stops():

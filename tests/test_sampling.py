@@ -13,6 +13,7 @@ from scenelabel.render.sampling import (
     PDF_EPS,
     DensityGrid,
     cell_indices,
+    class_balanced_rays,
     free_cells_from_depth,
     importance_sample,
     march,
@@ -22,6 +23,7 @@ from scenelabel.render.sampling import (
     normalized_distances,
     occupied_at,
     ray_aabb_intersect,
+    rays_by_class,
 )
 
 
@@ -631,3 +633,18 @@ def test_carved_cells_stay_empty_through_refreshes_and_rebuilds():
     grid.update(dense, generator=torch.Generator().manual_seed(2))
     assert grid.bits[1:].all() and not grid.bits[0].any()
     assert grid.carved[0].all() and not grid.carved[1:].any()
+
+
+def test_class_balanced_rays_draw_each_labelling_class_alike():
+    """rays_by_class groups a pool by label (unlabelled rays left out); class_balanced_rays draws the
+    five rays of a rare class as often as the thousand of a common one, and every one of them."""
+    channels = torch.cat([torch.zeros(1000, dtype=torch.long), torch.full((5,), 3), torch.full((50,), -1)])
+    pool = torch.arange(len(channels)) + 7  # ray indices, not positions
+    grouped = rays_by_class(channels, pool)
+    assert grouped[1].tolist() == [[0, 1000], [1000, 5]]
+    drawn = class_balanced_rays(grouped, 4000, torch.Generator().manual_seed(0))
+    labels = channels[drawn - 7]
+    assert (labels >= 0).all()
+    assert 0.45 < float((labels == 3).float().mean()) < 0.55
+    assert set(drawn[labels == 3].tolist()) == set(range(1007, 1012))
+    assert len(class_balanced_rays(grouped, 0, torch.Generator())) == 0

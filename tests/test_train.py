@@ -62,10 +62,32 @@ def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_hal
     assert metrics["steps"] == 400  # the build finished
     (rollback,) = metrics["rollbacks"]
     assert 250 <= rollback["diverged_at"] < 270  # a few steps of it tip the smoothed error over
-    assert rollback["resumed_from"] == 200 and rollback["lr_factor"] == 0.5  # the last copy before the spike
+    assert rollback["resumed_from"] == 100 and rollback["lr_factor"] == 0.5  # the older of the copies before it
     groups = load_checkpoint(tmp_path / "out").optimizer["param_groups"]
     assert [g["lr_scale"] for g in groups] == [0.5, 0.5]  # kept for a resumed build
     assert metrics["miou"] > 0.8
+
+
+def test_a_rollback_takes_the_schedules_back_with_the_state_and_ends_them_with_the_budget(scene):
+    from scenelabel.train.divergence import Diverged
+
+    config = preset("quick", {"train": {"steps": 100_000, "time_budget": 100.0}})
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    trainer.state.elapsed = 20.0
+    trainer.guard.keep(0, trainer._snapshot)  # a fifth of the budget spent
+    trainer.state.step, trainer.state.elapsed = 300, 60.0
+    assert trainer.progress() == pytest.approx(0.6)
+    message = trainer._roll_back(Diverged(300, 1.0))
+    assert "resumed from step 0 at 0.5 times the learning rate" in message
+    assert trainer.state.step == 0 and trainer.state.elapsed == 60.0  # the time spent stays spent
+    assert trainer.progress() == pytest.approx(0.2)  # the schedules of the state resumed
+    trainer.state.elapsed = 80.0  # half way from the rollback to the budget's end
+    assert trainer.progress() == pytest.approx(0.6)
+    trainer._set_lr()
+    tc = trainer.config.train
+    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.5 * tc.lr_encoding * tc.lr_final_ratio**0.6)
+    trainer.state.elapsed = 100.0
+    assert trainer.progress() == pytest.approx(1.0)
 
 
 def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch):
@@ -603,23 +625,6 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
     empty()
     trainer._reopen_worst(SimpleNamespace(rgb=out.rgb, depth=depth, class_log_probs=right), torch.ones(64, 3), idx, t_stop)
     assert not trainer.grid.bits.any()
-
-
-def test_class_balanced_rays_draw_each_labelling_class_alike():
-    """rays_by_class groups a pool by label (unlabelled rays left out); class_balanced_rays draws the
-    five rays of a rare class as often as the thousand of a common one, and every one of them."""
-    from scenelabel.train.trainer import class_balanced_rays, rays_by_class
-
-    channels = torch.cat([torch.zeros(1000, dtype=torch.long), torch.full((5,), 3), torch.full((50,), -1)])
-    pool = torch.arange(len(channels)) + 7  # ray indices, not positions
-    grouped = rays_by_class(channels, pool)
-    assert grouped[1].tolist() == [[0, 1000], [1000, 5]]
-    drawn = class_balanced_rays(grouped, 4000, torch.Generator().manual_seed(0))
-    labels = channels[drawn - 7]
-    assert (labels >= 0).all()
-    assert 0.45 < float((labels == 3).float().mean()) < 0.55
-    assert set(drawn[labels == 3].tolist()) == set(range(1007, 1012))
-    assert len(class_balanced_rays(grouped, 0, torch.Generator())) == 0
 
 
 @pytest.mark.parametrize("n_open", [0, 16])

@@ -1,4 +1,5 @@
-"""Where to evaluate the field along rays: ray/AABB clipping, uniform or disparity marching, empty-space skipping.
+"""Where to evaluate the field along rays: ray/AABB clipping, uniform or disparity marching, empty-space skipping;
+which training rays to draw by class.
 
 Pure functions, plus :class:`DensityGrid`, a thin state holder (a bit grid over the scene box,
 refreshed from the field's density during training) whose lookup is a pure function.
@@ -25,6 +26,8 @@ __all__ = [
     "free_cells_from_depth",
     "cell_steps",
     "DensityGrid",
+    "rays_by_class",
+    "class_balanced_rays",
 ]
 
 
@@ -547,3 +550,23 @@ class DensityGrid(nn.Module):
     @property
     def occupied_fraction(self) -> float:
         return float(self.bits.float().mean())
+
+
+def rays_by_class(channels: torch.Tensor, rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``rays`` [n] (indices) grouped by their label ``channels`` [n] (-1: unlabelled, left out):
+    (the labelled rays ordered by channel [m], each labelling channel's [start, count] in it [C, 2])."""
+    labelled = channels >= 0
+    order = torch.argsort(channels[labelled], stable=True)
+    _, counts = torch.unique_consecutive(channels[labelled][order], return_counts=True)
+    starts = torch.cumsum(counts, 0) - counts
+    return rays[labelled][order], torch.stack([starts, counts], -1)
+
+
+def class_balanced_rays(grouped: tuple[torch.Tensor, torch.Tensor], n: int, generator: torch.Generator) -> torch.Tensor:
+    """[n] rays drawn from ``grouped`` (:func:`rays_by_class`) class by class: each draw picks a
+    labelling class uniformly, then one of its rays, so a lamp's few pixels come up as often as the walls'."""
+    rays, spans = grouped
+    which = torch.randint(len(spans), (n,), generator=generator)
+    start, count = spans[which].to(rays.device).unbind(-1)
+    within = (torch.rand(n, generator=generator).to(rays.device) * count).long().clamp_(max=count - 1)
+    return rays[start + within]

@@ -6,15 +6,16 @@ climbs back to about the colour variance of the targets on the way, before it fa
 ``sampling.grid_open_rays``). Which runs do so is chance: repeated runs of one build differ. A
 check that stops such a run can stop a build that would have finished (docs/suite_open.md: two
 builds stopped); one that never stops lets a learning rate 1000 times too high
-run to its end. So :class:`DivergenceGuard` keeps a copy of the last state that was clearly
-learning and, when the run diverges, hands it back to be resumed at a lower learning rate; only
-when that has not helped MAX_ROLLBACKS times does the build stop.
+run to its end. So :class:`DivergenceGuard` keeps copies of the state from before the climb and,
+when the run diverges, hands one back to be resumed at a lower learning rate; only when that has
+not helped MAX_ROLLBACKS times does the build stop.
 Orchestration only: no maths here, and nothing here knows what a state holds.
 """
 
 from __future__ import annotations
 
 import copy
+from collections import deque
 from typing import Callable
 
 from scenelabel.errors import TrainingError
@@ -23,7 +24,6 @@ __all__ = [
     "DIVERGENCE_CHECK_STEP",
     "Diverged",
     "DivergenceGuard",
-    "HEALTHY_RATIO",
     "MAX_ROLLBACKS",
     "MSE_EMA",
     "ROLLBACK_LR_FACTOR",
@@ -43,11 +43,9 @@ MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
 
 SNAPSHOT_EVERY = 100
-"""Steps between the copies of a clearly learning state (the copy costs one state dict's memory)."""
-
-HEALTHY_RATIO = 0.5
-"""A state is copied only while its smoothed MSE is at most this fraction of the mean colour's:
-clearly learning, not already on its way up (the initial state is always copied)."""
+"""Steps between copies of the training state, taken while the run is not diverged; the two newest
+are kept (each costs one state dict's memory), and a rollback resumes from the older one: a climb
+to the mean colour's error takes tens of steps, so the newer copy may already be on its way up."""
 
 ROLLBACK_LR_FACTOR = 0.5
 """Each rollback multiplies the learning rate by this, for the rest of the run."""
@@ -66,8 +64,8 @@ class Diverged(Exception):
 
 
 class DivergenceGuard:
-    """Watches the smoothed photometric MSE of a run against the mean colour's, keeps the last
-    clearly learning state, and decides between a rollback and a stop.
+    """Watches the smoothed photometric MSE of a run against the mean colour's, keeps copies of
+    the state from before, and decides between a rollback and a stop.
 
     Args:
         mean_colour_mse: the MSE of predicting every training pixel as the mean training colour.
@@ -76,17 +74,18 @@ class DivergenceGuard:
     def __init__(self, mean_colour_mse: float):
         self.mean_colour_mse = mean_colour_mse
         self.mse_ema: float | None = None
-        self.snapshot: tuple[int, float | None, dict] | None = None  # (step, mse_ema then, a deep copy of the state)
+        # (step, mse_ema then, a deep copy of the state), oldest first
+        self.snapshots: deque[tuple[int, float | None, dict]] = deque(maxlen=2)
         self.rollbacks: list[dict] = []  # {"diverged_at", "resumed_from", "lr_factor"} per rollback
 
     def keep(self, step: int, state_dict: Callable[[], dict]) -> None:
-        """Called before each step: every SNAPSHOT_EVERY steps, copies ``state_dict()`` if the run
-        is clearly learning (or has not started: the first call with no copy yet at step 0)."""
-        if step % SNAPSHOT_EVERY:
+        """Called before each step: every SNAPSHOT_EVERY steps, copies ``state_dict()`` if the
+        smoothed error is known and not worse than the mean colour's (the initial state: always)."""
+        if step % SNAPSHOT_EVERY or (self.snapshots and self.snapshots[-1][0] == step):  # (resumed from it)
             return
-        first = self.snapshot is None and step == 0
-        if first or (self.mse_ema is not None and self.mse_ema <= HEALTHY_RATIO * self.mean_colour_mse):
-            self.snapshot = (step, self.mse_ema, copy.deepcopy(state_dict()))
+        initial = step == 0 and not self.snapshots
+        if initial or (self.mse_ema is not None and self.mse_ema <= self.mean_colour_mse):
+            self.snapshots.append((step, self.mse_ema, copy.deepcopy(state_dict())))
 
     def observe(self, step: int, mse: float) -> None:
         """Adds one step's MSE (the mean over data-parallel ranks: every rank decides alike) to
@@ -97,16 +96,19 @@ class DivergenceGuard:
             raise Diverged(step, self.mse_ema)
 
     def roll_back(self, diverged: Diverged) -> tuple[int, dict]:
-        """(the step of the copied state, the copy) to resume from at ROLLBACK_LR_FACTOR times the
-        learning rate, the smoothed error set back to what it was then; raises TrainingError when
-        MAX_ROLLBACKS have not helped or no copy exists."""
-        if self.snapshot is None or len(self.rollbacks) >= MAX_ROLLBACKS:
+        """(the step of the older kept copy, the copy) to resume from at ROLLBACK_LR_FACTOR times
+        the learning rate, the smoothed error set back to what it was then (the newer copy is
+        dropped: it belongs to the run that diverged); raises TrainingError when MAX_ROLLBACKS have
+        not helped or no copy exists."""
+        if not self.snapshots or len(self.rollbacks) >= MAX_ROLLBACKS:
             tried = f" after {len(self.rollbacks)} rollbacks at lower learning rates" if self.rollbacks else ""
             raise TrainingError(
                 f"training diverged at step {diverged.step}{tried}: the photometric error ({diverged.mse_ema:.4g}) is "
                 f"worse than predicting the mean colour ({self.mean_colour_mse:.4g}); the learning rate is probably too high"
             )
-        step, self.mse_ema, state = self.snapshot
+        while len(self.snapshots) > 1:
+            self.snapshots.pop()
+        step, self.mse_ema, state = self.snapshots[0]
         self.rollbacks.append(
             {"diverged_at": diverged.step, "resumed_from": step, "lr_factor": ROLLBACK_LR_FACTOR ** (len(self.rollbacks) + 1)}
         )

@@ -43,7 +43,7 @@ from scenelabel.render.marcher import (
     render_rays,
     render_rays_hierarchical,
 )
-from scenelabel.render.sampling import DensityGrid
+from scenelabel.render.sampling import DensityGrid, class_balanced_rays, rays_by_class
 from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from scenelabel.train.divergence import Diverged, DivergenceGuard
 from scenelabel.train.losses import (
@@ -189,26 +189,6 @@ def rays_for_views(
         depth=None if sensor is None else torch.as_tensor(cat["depth"], dtype=torch.float32),
         alpha=None if np.all(cat["alpha"] == 1) else torch.as_tensor(cat["alpha"], dtype=torch.float32),
     )
-
-
-def rays_by_class(channels: torch.Tensor, rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``rays`` [n] (indices) grouped by their label ``channels`` [n] (-1: unlabelled, left out):
-    (the labelled rays ordered by channel [m], each labelling channel's [start, count] in it [C, 2])."""
-    labelled = channels >= 0
-    order = torch.argsort(channels[labelled], stable=True)
-    _, counts = torch.unique_consecutive(channels[labelled][order], return_counts=True)
-    starts = torch.cumsum(counts, 0) - counts
-    return rays[labelled][order], torch.stack([starts, counts], -1)
-
-
-def class_balanced_rays(grouped: tuple[torch.Tensor, torch.Tensor], n: int, generator: torch.Generator) -> torch.Tensor:
-    """[n] rays drawn from ``grouped`` (:func:`rays_by_class`) class by class: each draw picks a
-    labelling class uniformly, then one of its rays, so a lamp's few pixels come up as often as the walls'."""
-    rays, spans = grouped
-    which = torch.randint(len(spans), (n,), generator=generator)
-    start, count = spans[which].to(rays.device).unbind(-1)
-    within = (torch.rand(n, generator=generator).to(rays.device) * count).long().clamp_(max=count - 1)
-    return rays[start + within]
 
 
 @dataclass
@@ -381,13 +361,21 @@ class Trainer:
         if pool_alpha is not None and random_background:
             mean_colour_mse += float(((1.0 - pool_alpha) ** 2).mean()) / 12.0
         self.guard = DivergenceGuard(mean_colour_mse)
+        self.resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
+
+    def _snapshot(self) -> dict:
+        """What the divergence guard copies: :meth:`state_dict` and the time budget's fraction spent."""
+        return {**self.state_dict(), "time_fraction": self._time_fraction()}
 
     def _roll_back(self, diverged: Diverged) -> str:
-        """Resume from the guard's last clearly learning state at a lower learning rate (the time
+        """Resume from the state the guard hands back, at a lower learning rate (the time
         spent stays spent); raises TrainingError when the guard gives up. Returns what happened."""
         step, state = self.guard.roll_back(diverged)
         elapsed = self.state.elapsed
         self.load_state_dict(state)
+        # the schedules (learning rate, the terms that start or end at a fraction of the run) go back
+        # with the state, and end with the budget, which the time thrown away counts against
+        self.resumed_at = (state["time_fraction"], elapsed)
         self.state.elapsed = elapsed
         factor = self.guard.rollbacks[-1]["lr_factor"]
         for group in self.optimizer.param_groups:  # saved with the optimizer: a resumed build keeps it
@@ -419,11 +407,18 @@ class Trainer:
 
     def progress(self) -> float:
         """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
-        tc = self.config.train
-        done = self.state.step / max(tc.steps, 1)
-        if tc.time_budget:
-            done = max(done, self.state.elapsed / tc.time_budget)
-        return min(done, 1.0)
+        return min(max(self.state.step / max(self.config.train.steps, 1), self._time_fraction()), 1.0)
+
+    def _time_fraction(self) -> float:
+        """The time budget's fraction spent (0 without one); after a rollback, from the fraction of
+        the state resumed, in a straight line to 1 at the budget's end."""
+        budget, elapsed = self.config.train.time_budget, self.state.elapsed
+        if not budget:
+            return 0.0
+        if self.resumed_at is None:
+            return elapsed / budget
+        start, then = self.resumed_at
+        return start + (1.0 - start) * (elapsed - then) / max(budget - then, 1e-9)
 
     def _set_lr(self) -> None:
         factor = self.config.train.lr_final_ratio ** self.progress()
@@ -609,7 +604,7 @@ class Trainer:
                 if update_share() < threads and not told:  # other scenelabel jobs started (scenelabel._cores)
                     told = True  # once: the share then follows the jobs as they start and end
                     bar.write(f"step {self.state.step}: {share_summary()}; the share follows them as they start and end")
-                self.guard.keep(self.state.step, self.state_dict)
+                self.guard.keep(self.state.step, self._snapshot)
                 try:
                     logs = self.train_step()
                 except Diverged as diverged:
