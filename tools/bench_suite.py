@@ -544,7 +544,10 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
 
 
 def _rollbacks(rows: list[dict]) -> list[str]:
-    """The builds whose training diverged and resumed from an earlier state (scenelabel.train.divergence)."""
+    """The builds whose training diverged and resumed from an earlier state (scenelabel.train.divergence);
+    nothing for rows written before builds recorded that (``--rewrite`` of an older document)."""
+    if not any("rollbacks" in r for r in rows):
+        return []
     rolled = [r for r in rows if r.get("rollbacks")]
     lines = ["## Rollbacks", ""]
     if not rolled:
