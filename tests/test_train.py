@@ -63,8 +63,9 @@ def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_hal
     (rollback,) = metrics["rollbacks"]
     assert 250 <= rollback["diverged_at"] < 270  # a few steps of it tip the smoothed error over
     assert rollback["resumed_from"] == 100 and rollback["lr_factor"] == 0.5  # the older of the copies before it
-    groups = load_checkpoint(tmp_path / "out").optimizer["param_groups"]
-    assert [g["lr_scale"] for g in groups] == [0.5, 0.5]  # kept for a resumed build
+    ckpt = load_checkpoint(tmp_path / "out")
+    assert [g["lr_scale"] for g in ckpt.optimizer["param_groups"]] == [0.5, 0.5]  # kept for a resumed build
+    assert ckpt.resumed_at is not None  # and so are the schedules' restart
     assert metrics["miou"] > 0.8
 
 
@@ -83,6 +84,9 @@ def test_a_rollback_takes_the_schedules_back_with_the_state_and_ends_them_with_t
     assert trainer.progress() == pytest.approx(0.2)  # the schedules of the state resumed
     trainer.state.elapsed = 80.0  # half way from the rollback to the budget's end
     assert trainer.progress() == pytest.approx(0.6)
+    resumed, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    resumed.load_state_dict(trainer.state_dict())  # a build resumed from a checkpoint keeps the schedules
+    assert resumed.progress() == pytest.approx(0.6)
     trainer._set_lr()
     tc = trainer.config.train
     assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.5 * tc.lr_encoding * tc.lr_final_ratio**0.6)

@@ -46,7 +46,7 @@ UPGRADE_COMMAND = "scenelabel upgrade-checkpoint"
 """The command that converts a format-1 (pickled) checkpoint: ``scenelabel upgrade-checkpoint PATH``."""
 
 #: The training state's entries (the layout of :meth:`scenelabel.train.trainer.Trainer.state_dict`).
-STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator")
+STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator", "resumed_at")
 _HEADER_KEYS = ("format", "format_version", "scenelabel_version")
 
 
@@ -67,6 +67,7 @@ class Checkpoint:
     elapsed: float = 0.0  # seconds of training so far
     history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
     generator: torch.Tensor | None = None  # the training random generator's state (uint8)
+    resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
 
     def training_state(self) -> dict:
         """The training state as :meth:`scenelabel.train.trainer.Trainer.load_state_dict` takes it
@@ -105,6 +106,7 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
         "step": int(checkpoint.step),
         "elapsed": float(checkpoint.elapsed),
         "generator": checkpoint.generator,
+        "resumed_at": checkpoint.resumed_at,
         "json": _to_json(checkpoint.meta, checkpoint.history),
     }
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
@@ -182,6 +184,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
             elapsed=float(data["elapsed"]),
             history=list(record.get("history", [])),
             generator=data.get("generator"),
+            resumed_at=data.get("resumed_at"),
         )
     except (KeyError, TypeError, ValueError) as err:
         raise CheckpointError(f"{path}: incomplete checkpoint ({type(err).__name__}: {err})") from None

@@ -556,6 +556,8 @@ class Trainer:
             "history": self.state.history,
             "generator": self.generator.get_state(),
         }
+        if self.resumed_at is not None:  # a rollback's schedules: a resumed build keeps them
+            data["resumed_at"] = self.resumed_at
         if self.coarse is not None:
             data["coarse_model"] = self.coarse.state_dict()
         return data
@@ -571,6 +573,7 @@ class Trainer:
         self.state = TrainState(step=int(data["step"]), elapsed=float(data["elapsed"]), history=list(data.get("history", [])))
         if "generator" in data:
             self.generator.set_state(data["generator"])
+        self.resumed_at = tuple(data["resumed_at"]) if "resumed_at" in data else None
 
     def drop_data_parallel(self) -> None:
         """Unwrap the DistributedDataParallel render: training with the other ranks is over, and the
