@@ -149,7 +149,8 @@ class SamplingConfig:
     # holds, until grid_open_until of the run: a thin object whose cells the grid emptied before the
     # field had learnt it gets a gradient, and its cells re-open once the field holds density there (0: off).
     # Measured and left off: 16 lifted hall-10x6's mIoU from 0.861 to 0.920, but two of twelve suite
-    # builds stopped as diverged (docs/suite_open.md; docs/models.md)
+    # builds stopped as diverged (docs/suite_open.md); with rollbacks two of twelve diverged again and
+    # office-5x4's ended half transparent (docs/suite_open_rollback.md; docs/models.md)
     grid_open_rays: int = 0
     grid_open_until: float = 0.5
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
