@@ -38,6 +38,17 @@ def test_mse():
     assert float(photometric_mse(torch.zeros(2, 3), torch.ones(2, 3))) == 1.0
 
 
+def test_weighted_mse_matches_a_float64_loop_and_unit_weights_the_plain_mean():
+    g = torch.Generator().manual_seed(0)
+    rgb, target, weights = torch.rand(6, 3, generator=g), torch.rand(6, 3, generator=g), 3 * torch.rand(6, generator=g)
+    ref = 0.0
+    for i in range(6):
+        for c in range(3):
+            ref += float(weights[i]) * (float(rgb[i, c]) - float(target[i, c])) ** 2
+    assert float(photometric_mse(rgb, target, weights)) == pytest.approx(ref / 18, rel=1e-6)
+    assert float(photometric_mse(rgb, target, torch.ones(6))) == pytest.approx(float(photometric_mse(rgb, target)), rel=1e-6)
+
+
 def test_class_balance_weights_median_frequency():
     channels = torch.tensor([0] * 6 + [1] * 3 + [2] * 1 + [-1] * 5)
     w = class_balance_weights(channels, 4)

@@ -637,14 +637,17 @@ def test_carved_cells_stay_empty_through_refreshes_and_rebuilds():
 
 def test_class_balanced_rays_draw_each_labelling_class_alike():
     """rays_by_class groups a pool by label (unlabelled rays left out); class_balanced_rays draws the
-    five rays of a rare class as often as the thousand of a common one, and every one of them."""
+    five rays of a rare class as often as the thousand of a common one, and every one of them; each
+    draw's importance weight is 2 x its class's share of the labelled rays, 1 on average."""
     channels = torch.cat([torch.zeros(1000, dtype=torch.long), torch.full((5,), 3), torch.full((50,), -1)])
     pool = torch.arange(len(channels)) + 7  # ray indices, not positions
     grouped = rays_by_class(channels, pool)
     assert grouped[1].tolist() == [[0, 1000], [1000, 5]]
-    drawn = class_balanced_rays(grouped, 4000, torch.Generator().manual_seed(0))
+    drawn, weights = class_balanced_rays(grouped, 4000, torch.Generator().manual_seed(0))
     labels = channels[drawn - 7]
+    assert torch.allclose(weights, torch.where(labels == 3, 2 * 5 / 1005, 2 * 1000 / 1005))
+    assert float(weights.mean()) == pytest.approx(1.0, abs=0.05)
     assert (labels >= 0).all()
     assert 0.45 < float((labels == 3).float().mean()) < 0.55
     assert set(drawn[labels == 3].tolist()) == set(range(1007, 1012))
-    assert len(class_balanced_rays(grouped, 0, torch.Generator())) == 0
+    assert [len(t) for t in class_balanced_rays(grouped, 0, torch.Generator())] == [0, 0]

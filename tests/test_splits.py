@@ -232,7 +232,7 @@ def test_transparent_pixels_train_toward_the_background(split_scene: Path, monke
     scene.image_alphas = [np.zeros_like(a) for a in scene.image_alphas]  # every pixel transparent
     targets = []
     real = trainer_module.photometric_mse
-    monkeypatch.setattr(trainer_module, "photometric_mse", lambda rgb, target: targets.append(target) or real(rgb, target))
+    monkeypatch.setattr(trainer_module, "photometric_mse", lambda rgb, target, weights=None: targets.append(target) or real(rgb, target, weights))
     trainer, _, _ = prepare_training(scene, _quick(background=[0.2, 0.4, 0.6]), torch.device("cpu"))
     assert trainer.rays.alpha is not None and float(trainer.rays.alpha.max()) == 0.0
     trainer.train_step()
@@ -245,7 +245,7 @@ def test_opaque_scenes_train_on_the_pixels_unchanged(tmp_path: Path, monkeypatch
     assert scene.image_alphas is None
     targets = []
     real = trainer_module.photometric_mse
-    monkeypatch.setattr(trainer_module, "photometric_mse", lambda rgb, target: targets.append(target) or real(rgb, target))
+    monkeypatch.setattr(trainer_module, "photometric_mse", lambda rgb, target, weights=None: targets.append(target) or real(rgb, target, weights))
     trainer, _, _ = prepare_training(scene, _quick(), torch.device("cpu"))
     assert trainer.rays.alpha is None
     trainer.train_step()

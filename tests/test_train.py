@@ -52,8 +52,8 @@ def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_hal
         first_pass["step"] += 1
         return real_step(self)
 
-    def spiking(rgb, target):  # from step 250 of the first pass on, far above the mean colour's error
-        return real_mse(rgb, target) + (1.0 if first_pass["on"] and first_pass["step"] > 250 else 0.0)
+    def spiking(rgb, target, weights=None):  # from step 250 of the first pass on, far above the mean colour's error
+        return real_mse(rgb, target, weights) + (1.0 if first_pass["on"] and first_pass["step"] > 250 else 0.0)
 
     monkeypatch.setattr(train.Trainer, "train_step", counted)
     monkeypatch.setattr(train, "photometric_mse", spiking)
@@ -100,9 +100,9 @@ def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch
     real = train.photometric_mse
     calls = {"n": 0}
 
-    def poisoned(rgb, target):
+    def poisoned(rgb, target, weights=None):
         calls["n"] += 1
-        return real(rgb, target) * (float("nan") if calls["n"] > 20 else 1.0)
+        return real(rgb, target, weights) * (float("nan") if calls["n"] > 20 else 1.0)
 
     monkeypatch.setattr(train, "photometric_mse", poisoned)
     config = preset("quick", {"train": {"steps": 50, "checkpoint_every": 10}, "output": {"write_map": False}})
@@ -632,10 +632,13 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
 
 
 @pytest.mark.parametrize("n_open", [0, 16])
-def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open):
+def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open, monkeypatch):
     """``sampling.grid_open_rays``: through a grid emptied before the step, the step's class-balanced
     extra rays still sample (and so give the field a gradient there); without them nothing is
-    sampled; past ``sampling.grid_open_until`` of the run they are no longer added."""
+    sampled; past ``sampling.grid_open_until`` of the run they are no longer added. Their colour
+    error counts at their class's pixel share (K x share), the regular rays' at 1."""
+    import scenelabel.train.trainer as train
+
     config = preset("quick", {
         "sampling": {"n_steps": 32, "grid_resolution": 16, "grid_open_rays": n_open, "grid_open_until": 0.5},
         "train": {"steps": 10, "batch_rays": 64},
@@ -643,7 +646,18 @@ def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open):
     })
     trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
     trainer.grid.update(lambda p: torch.zeros(len(p)), decay=0.0)
+    weights_seen = []
+    real_mse = train.photometric_mse
+    monkeypatch.setattr(train, "photometric_mse", lambda rgb, target, weights=None: weights_seen.append(weights) or real_mse(rgb, target, weights))
     logged = trainer.train_step()  # step 0: before the grid's warm-up, no refresh
+    if n_open == 0:
+        assert weights_seen == [None]
+    else:
+        counts = trainer.rays_by_class[1][:, 1].double()
+        shares = (len(counts) * counts / counts.sum()).float()
+        weights = weights_seen[0]
+        assert weights.shape == (80,) and (weights[:64] == 1).all()
+        assert all(bool(torch.isclose(w, shares).any()) for w in weights[64:])
     assert trainer.grid.occupied_fraction == 0.0
     if n_open == 0:
         assert logged["samples_per_ray"] == 0.0

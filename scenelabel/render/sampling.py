@@ -562,11 +562,17 @@ def rays_by_class(channels: torch.Tensor, rays: torch.Tensor) -> tuple[torch.Ten
     return rays[labelled][order], torch.stack([starts, counts], -1)
 
 
-def class_balanced_rays(grouped: tuple[torch.Tensor, torch.Tensor], n: int, generator: torch.Generator) -> torch.Tensor:
+def class_balanced_rays(
+    grouped: tuple[torch.Tensor, torch.Tensor], n: int, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
     """[n] rays drawn from ``grouped`` (:func:`rays_by_class`) class by class: each draw picks a
-    labelling class uniformly, then one of its rays, so a lamp's few pixels come up as often as the walls'."""
+    labelling class uniformly, then one of its rays, so a lamp's few pixels come up as often as the
+    walls'; and [n] their importance weights, K x the drawn class's share of the grouped rays (K
+    classes): the ratio of a ray's chance in a uniform draw to its chance here, so a weighted mean
+    over the drawn rays estimates the mean over all of them (weights average 1 over draws)."""
     rays, spans = grouped
     which = torch.randint(len(spans), (n,), generator=generator)
     start, count = spans[which].to(rays.device).unbind(-1)
     within = (torch.rand(n, generator=generator).to(rays.device) * count).long().clamp_(max=count - 1)
-    return rays[start + within]
+    share = count.double() / spans[:, 1].sum().to(rays.device)
+    return rays[start + within], (len(spans) * share).float()

@@ -101,9 +101,16 @@ def composite_target(rgb, alpha, background):
     return out if background is None else out + background * (1.0 - a)
 
 
-def photometric_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean squared error over rays and channels. rgb, target: [n_rays, 3] -> scalar."""
-    return torch.mean((rgb - target) ** 2)
+def photometric_mse(rgb: torch.Tensor, target: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared error over rays and channels. rgb, target: [n_rays, 3] -> scalar.
+
+    ``weights``: [n_rays] per-ray factors on the squared error (None: 1 each), still divided by
+    3 n_rays, e.g. importance weights of rays drawn class by class
+    (:func:`scenelabel.render.sampling.class_balanced_rays`)."""
+    squared = (rgb - target) ** 2
+    if weights is None:
+        return torch.mean(squared)
+    return torch.sum(weights[:, None] * squared) / squared.numel()
 
 
 def total_variation(grid: torch.Tensor) -> torch.Tensor:

@@ -465,10 +465,13 @@ class Trainer:
         self._set_lr()
         pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
         idx = self.ray_pool[pick.to(self.device)]
-        open_rays = None
+        open_rays = colour_weights = None
         if self.rays_by_class is not None and self.coarse is None and self.progress() < sc.grid_open_until:
-            extra = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
+            extra, share_weights = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
             open_rays = torch.arange(len(idx) + len(extra), device=self.device) >= len(idx)
+            # their colour counts at the pixels' shares (their labels stay balanced): drawn class by
+            # class, they would otherwise pull the colour towards the furniture's (docs/models.md)
+            colour_weights = torch.cat([torch.ones(len(idx), device=self.device), share_weights])
             idx = torch.cat([idx, extra])
         n_rays = len(idx)
         jitter = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
@@ -500,7 +503,7 @@ class Trainer:
         target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
         if sc.grid_reopen > 0 and self.coarse is None and self.progress() < sc.grid_reopen_until:
             self._reopen_worst(out, target_rgb, idx, t_stop)
-        mse = photometric_mse(out.rgb, target_rgb)
+        mse = photometric_mse(out.rgb, target_rgb, colour_weights)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
         distortion = out.distortion.mean()
         distortion_weight = self.distortion_weight if self.progress() >= tc.distortion_start else 0.0
