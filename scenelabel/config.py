@@ -28,6 +28,7 @@ __all__ = [
     "DISTORTION_THIN_MAX",
     "SENSOR_FREE_MARGIN",
     "LAYOUT_FREE_MARGIN",
+    "LAYOUT_OPEN_RAYS",
     "config_from_dict",
     "config_to_dict",
     "render_background",
@@ -148,10 +149,10 @@ class SamplingConfig:
     # class's pixels as often as a common one's), that sample every marching step whatever the grid
     # holds, until grid_open_until of the run: a thin object whose cells the grid emptied before the
     # field had learnt it gets a gradient, and its cells re-open once the field holds density there (0: off).
-    # Measured and left off: 16 lifted hall-10x6's mIoU from 0.861 to 0.920, but two of twelve suite
-    # builds stopped as diverged (docs/suite_open.md); with rollbacks two of twelve diverged again and
-    # office-5x4's ended half transparent (docs/suite_open_rollback.md; docs/models.md)
-    grid_open_rays: int = 0
+    # Their colour error counts at their class's share of the pixels (the labels' stays balanced).
+    # "auto": LAYOUT_OPEN_RAYS where all the training depth comes from the room's layout and the
+    # cameras do not all look one way, else 0 (docs/suite_open_share.md; docs/models.md)
+    grid_open_rays: int | str = "auto"
     grid_open_until: float = 0.5
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
@@ -192,8 +193,9 @@ class SamplingConfig:
         decay = self.grid_decay
         if decay != AUTO and (isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 < decay <= 1)):
             raise ConfigError(f"sampling.grid_decay must be \"auto\" or in (0, 1], got {decay!r}")
-        if isinstance(self.grid_open_rays, bool) or not (isinstance(self.grid_open_rays, int) and self.grid_open_rays >= 0):
-            raise ConfigError(f"sampling.grid_open_rays must be an integer >= 0, got {self.grid_open_rays!r}")
+        n_open = self.grid_open_rays
+        if n_open != AUTO and (isinstance(n_open, bool) or not (isinstance(n_open, int) and n_open >= 0)):
+            raise ConfigError(f"sampling.grid_open_rays must be an integer >= 0 or \"{AUTO}\", got {n_open!r}")
         for name in ("grid_reopen", "grid_reopen_until", "grid_open_until"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0 <= value <= 1):
@@ -211,7 +213,7 @@ class SamplingConfig:
 AUTO = "auto"
 """``train.distortion_weight``: chosen by the build from how many views see the observed geometry;
 ``sampling.grid_decay``, ``train.steps`` and ``train.time_budget``: from whether the training rays carry
-sensor depth."""
+sensor depth; ``sampling.grid_open_rays``: from where the depth comes from and where the cameras look."""
 
 GRID_DECAY = 0.95
 """``sampling.grid_decay`` "auto" without sensor depth."""
@@ -257,8 +259,11 @@ def resolve_by_depth(config: BuildConfig, with_depth: bool) -> BuildConfig:
     ``sampling.grid_decay`` and ``train.time_budget`` become GRID_DECAY_WITH_DEPTH and
     :func:`time_budget_with_depth` (the build then plans it from its setup and held-out views) when
     the rays carry depth the build trains on (``with_depth``), else GRID_DECAY and TIME_BUDGET;
-    ``train.steps`` becomes STEPS either way."""
+    ``train.steps`` becomes STEPS either way. ``sampling.grid_open_rays`` still "auto" (the build chose
+    none) becomes 0."""
     sc, tc = config.sampling, config.train
+    if sc.grid_open_rays == AUTO:  # chosen by the build (choices.resolve_open_rays); a trainer made without it: off
+        sc = dataclasses.replace(sc, grid_open_rays=0)
     if sc.grid_decay == AUTO:
         sc = dataclasses.replace(sc, grid_decay=GRID_DECAY_WITH_DEPTH if with_depth else GRID_DECAY)
     if tc.steps == AUTO:
@@ -305,6 +310,12 @@ to the edge of the space it empties, and a forward rig's far wall, which paralla
 can stay there: at :data:`SENSOR_FREE_MARGIN` office-5x4-forward's depth error was 2.80 and 1.90 %
 in training seeds 0 and 1, at 0.02 0.37 and 2.11 % (docs/suite_margin.md, one run): narrower, the
 edge still held seed 1's wall."""
+
+LAYOUT_OPEN_RAYS = 16
+"""``sampling.grid_open_rays`` "auto" where all the training depth comes from the room's layout and the
+training cameras do not all look one way: the rooms seen from inside that the scene suite measured
+it on (docs/suite_open_share.md: hall-10x6's lamp and chairs kept, no build diverged). A sensor's
+depth and forward-facing rigs were not measured with it, so there "auto" is 0."""
 
 RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""

@@ -207,6 +207,45 @@ def test_depth_background_auto_is_random_where_the_cameras_look_one_way(small_to
             assert chosen(preset("fast", {"train": {"depth_background": given}}), cameras) == given
 
 
+def test_open_rays_auto_only_where_the_layout_gives_all_the_depth_and_the_cameras_look_around(small_toy):
+    """resolve_open_rays: "auto" is LAYOUT_OPEN_RAYS with layout depth and cameras seen from inside,
+    0 with a sensor's depth or a forward-facing rig; a number stays; a trainer made without the
+    build (scenelabel.config.resolve_by_depth) takes 0."""
+    from scenelabel.config import LAYOUT_OPEN_RAYS, resolve_by_depth
+    from scenelabel.train.choices import resolve_open_rays
+
+    def chosen(config, cameras, from_layout):
+        return resolve_open_rays(config, cameras, from_layout).sampling.grid_open_rays
+
+    orbit = load_scene(small_toy).cameras
+    assert preset().sampling.grid_open_rays == AUTO and LAYOUT_OPEN_RAYS > 0
+    assert chosen(preset(), orbit, True) == LAYOUT_OPEN_RAYS
+    assert chosen(preset(), orbit, False) == 0
+    assert chosen(preset(), _forward_cameras(), True) == 0
+    assert chosen(preset("fast", {"sampling": {"grid_open_rays": 4}}), _forward_cameras(), False) == 4
+    assert resolve_by_depth(preset(), False).sampling.grid_open_rays == 0
+
+
+def test_a_room_seen_from_inside_trains_with_open_rays_and_a_forward_rig_without(tmp_path):
+    """With the layout's depth (what a build adds to a room's masks), studio-3x3 seen from inside
+    trains with LAYOUT_OPEN_RAYS open rays and its pool grouped by label; office-5x4-forward's
+    cameras all look one way, so none."""
+    import dataclasses
+
+    from scenelabel.config import LAYOUT_OPEN_RAYS
+    from scenelabel.data.layout_depth import with_layout_depth
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+    from scenelabel.train.pipeline import choose_views, prepare_training
+
+    for name, n_open in (("studio-3x3", LAYOUT_OPEN_RAYS), ("office-5x4-forward", 0)):
+        scene = load_scene(write_suite_scene(tmp_path / name, dataclasses.replace(suite_spec(name), n_views=12)))
+        scene, layout = with_layout_depth(scene, choose_views(scene, 8)[0])
+        assert layout is not None
+        trainer, _, _ = prepare_training(scene, preset("quick"), torch.device("cpu"))
+        assert trainer.config.sampling.grid_open_rays == n_open
+        assert (trainer.rays_by_class is not None) == (n_open > 0)
+
+
 def test_preset_auto_gives_forward_facing_cameras_before_a_room_fast_in_uniform_cells(small_toy):
     """A room's layout bounds what a forward-facing rig sees: the fast preset over a box (warp
     "box"), unless the warp is given; cameras seen from inside are as without a room."""

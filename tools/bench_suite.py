@@ -39,6 +39,7 @@ VARIANTS: dict[str, dict] = {
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
     "warmup-128": {"sampling": {"grid_warmup": 128}},  # every grid cell marched for the first 128 steps
+    "no-open": {"sampling": {"grid_open_rays": 0}},  # no open rays ("auto" gives rooms seen from inside 16)
     "open-16": {"sampling": {"grid_open_rays": 16}},  # 16 class-balanced rays a step march every cell
     "open-32": {"sampling": {"grid_open_rays": 32}},
     "open-64": {"sampling": {"grid_open_rays": 64}},
@@ -95,10 +96,11 @@ OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the tra
              "their class's share of the pixels (`sampling.grid_open_rays` {n}; default 0)")
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
-    "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`)",
+    "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
     **{f"open-{n}": OPEN_NOTE.format(n=n) for n in (16, 32, 64)},
+    "no-open": "no rays that ignore the density grid (`sampling.grid_open_rays` 0; \"auto\", the default, adds 16 a step to rooms seen from inside whose depth is all the layout's)",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",

@@ -1,7 +1,7 @@
 """What a build chooses from the scene before it trains (config and geometry only; the pipeline
 calls them): what the preset "auto" becomes, the distortion term's weight, the free-space term's
-margin, the colour behind rays with depth, and how far a box of uniform cells fitted to a room's
-layout reaches.
+margin, the rays that ignore the density grid, the colour behind rays with depth, and how far a
+box of uniform cells fitted to a room's layout reaches.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from scenelabel.config import (
     DISTORTION_AUTO_WEIGHT,
     DISTORTION_THIN_MAX,
     LAYOUT_FREE_MARGIN,
+    LAYOUT_OPEN_RAYS,
     SENSOR_FREE_MARGIN,
     BuildConfig,
     with_preset,
@@ -33,6 +34,7 @@ __all__ = [
     "resolve_preset",
     "resolve_distortion",
     "resolve_free_margin",
+    "resolve_open_rays",
     "resolve_depth_background",
     "reaching_cameras",
     "box_warp",
@@ -110,6 +112,20 @@ def resolve_free_margin(config: BuildConfig, from_layout: bool) -> BuildConfig:
         return config
     margin = LAYOUT_FREE_MARGIN if from_layout else SENSOR_FREE_MARGIN
     return dataclasses.replace(config, train=dataclasses.replace(tc, free_margin=margin))
+
+
+def resolve_open_rays(config: BuildConfig, cameras: Cameras, from_layout: bool) -> BuildConfig:
+    """``config`` with ``sampling.grid_open_rays`` "auto" made LAYOUT_OPEN_RAYS where all the training
+    depth comes from the room's layout (``from_layout``) and the training ``cameras`` do not all look
+    one way (:func:`scenelabel.geometry.frame.looking_one_way`), else 0; a number stays as given.
+    Where it was measured, the suite's rooms seen from inside, the open rays kept the thin objects
+    that the density grid had emptied before the field learnt them (docs/suite_open_share.md);
+    with a sensor's depth or a forward-facing rig they were not measured."""
+    sc = config.sampling
+    if sc.grid_open_rays != AUTO:
+        return config
+    n_open = LAYOUT_OPEN_RAYS if from_layout and not looking_one_way(cameras) else 0
+    return dataclasses.replace(config, sampling=dataclasses.replace(sc, grid_open_rays=n_open))
 
 
 def resolve_depth_background(config: BuildConfig, cameras: Cameras) -> BuildConfig:

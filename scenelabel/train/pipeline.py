@@ -62,6 +62,7 @@ from scenelabel.train.choices import (
     resolve_depth_background,
     resolve_distortion,
     resolve_free_margin,
+    resolve_open_rays,
     resolve_preset,
 )
 from scenelabel.train.distributed import DistContext, broadcast_array, init_from_env, leave
@@ -386,7 +387,9 @@ def prepare_training(
                 thinly_seen = float(broadcast_array(np.array([thinly_seen]), device)[0])
             _seed_everything(config.train.seed)  # the field starts as it would with given bounds
     config, distortion = resolve_distortion(config, thinly_seen)
-    config = resolve_free_margin(config, scene.info.get(DEPTH_SOURCE_KEY) == LAYOUT_SOURCE)
+    from_layout = scene.info.get(DEPTH_SOURCE_KEY) == LAYOUT_SOURCE
+    config = resolve_free_margin(config, from_layout)
+    config = resolve_open_rays(config, train_cameras, from_layout)
     config = resolve_depth_background(config, train_cameras)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
     if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, train_cameras):

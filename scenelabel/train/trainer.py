@@ -298,10 +298,6 @@ class Trainer:
         self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
-        self.rays_by_class = None  # sampling.grid_open_rays: the pool by label, where any ray has one
-        if sc.grid_open_rays > 0:
-            grouped = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
-            self.rays_by_class = grouped if len(grouped[1]) > 0 else None
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
         self.render = TrainingRender(
             self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
@@ -350,6 +346,10 @@ class Trainer:
         # "auto" is resolved by the build (choices.resolve_depth_background); a trainer made without it: the scene's
         self.depth_background = DEPTH_SCENE_BACKGROUND if tc.depth_background == AUTO else tc.depth_background
         self.config = resolve_by_depth(config, with_depth)  # grid_decay, steps, budget "auto": by the rays' depth
+        self.rays_by_class = None  # sampling.grid_open_rays: the pool by label, where any ray has one
+        if self.config.sampling.grid_open_rays > 0:  # "auto" resolved: by the build, else 0
+            grouped = rays_by_class(self.rays.channels[self.ray_pool], self.ray_pool)
+            self.rays_by_class = grouped if len(grouped[1]) > 0 else None
         self.state = TrainState()
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
         # the colour variance of the targets (with alpha: composited; a random background adds its
