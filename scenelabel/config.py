@@ -213,7 +213,7 @@ class SamplingConfig:
 AUTO = "auto"
 """``train.distortion_weight``: chosen by the build from how many views see the observed geometry;
 ``sampling.grid_decay``, ``train.steps`` and ``train.time_budget``: from whether the training rays carry
-sensor depth; ``sampling.grid_open_rays``: from where the depth comes from and where the cameras look."""
+sensor depth; ``sampling.grid_open_rays``: from the source of the training depth and where the cameras look."""
 
 GRID_DECAY = 0.95
 """``sampling.grid_decay`` "auto" without sensor depth."""

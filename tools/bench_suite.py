@@ -93,7 +93,8 @@ VARIANTS: dict[str, dict] = {
 }
 OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the training labels that sample every marching "
              "step whatever the density grid holds, for the first half of the run, their colour error weighted back to "
-             "their class's share of the pixels (`sampling.grid_open_rays` {n}; default 0)")
+             "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": 16 in a room seen from "
+             "inside whose training depth is all the layout's, else 0)")
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
