@@ -66,6 +66,7 @@ def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_hal
     ckpt = load_checkpoint(tmp_path / "out")
     assert [g["lr_scale"] for g in ckpt.optimizer["param_groups"]] == [0.5, 0.5]  # kept for a resumed build
     assert ckpt.resumed_at is not None  # and so are the schedules' restart
+    assert ckpt.rollbacks == metrics["rollbacks"]  # and the count, which the next rollback's rate follows
     assert metrics["miou"] > 0.8
 
 
@@ -92,6 +93,12 @@ def test_a_rollback_takes_the_schedules_back_with_the_state_and_ends_them_with_t
     assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.5 * tc.lr_encoding * tc.lr_final_ratio**0.6)
     trainer.state.elapsed = 100.0
     assert trainer.progress() == pytest.approx(1.0)
+    assert resumed.guard.rollbacks == trainer.guard.rollbacks  # a resumed build knows the rollback ...
+    resumed.guard.keep(0, resumed._snapshot)
+    resumed.state.step = 200
+    assert "at 0.25 times the learning rate" in resumed._roll_back(Diverged(200, 1.0))  # ... and lowers the rate further
+    assert [r["lr_factor"] for r in resumed.guard.rollbacks] == [0.5, 0.25]
+    assert resumed.state_dict()["rollbacks"] == resumed.guard.rollbacks and "rollbacks" not in resumed._snapshot()
 
 
 def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch):

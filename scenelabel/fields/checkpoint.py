@@ -46,7 +46,7 @@ UPGRADE_COMMAND = "scenelabel upgrade-checkpoint"
 """The command that converts a format-1 (pickled) checkpoint: ``scenelabel upgrade-checkpoint PATH``."""
 
 #: The training state's entries (the layout of :meth:`scenelabel.train.trainer.Trainer.state_dict`).
-STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator", "resumed_at")
+STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator", "resumed_at", "rollbacks")
 _HEADER_KEYS = ("format", "format_version", "scenelabel_version")
 
 
@@ -68,6 +68,7 @@ class Checkpoint:
     history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
     generator: torch.Tensor | None = None  # the training random generator's state (uint8)
     resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
+    rollbacks: list[dict] | None = None  # the divergence guard's record: {"diverged_at", "resumed_from", "lr_factor"} each
 
     def training_state(self) -> dict:
         """The training state as :meth:`scenelabel.train.trainer.Trainer.load_state_dict` takes it
@@ -107,6 +108,7 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
         "elapsed": float(checkpoint.elapsed),
         "generator": checkpoint.generator,
         "resumed_at": checkpoint.resumed_at,
+        "rollbacks": checkpoint.rollbacks,
         "json": _to_json(checkpoint.meta, checkpoint.history),
     }
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
@@ -185,6 +187,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
             history=list(record.get("history", [])),
             generator=data.get("generator"),
             resumed_at=data.get("resumed_at"),
+            rollbacks=data.get("rollbacks"),
         )
     except (KeyError, TypeError, ValueError) as err:
         raise CheckpointError(f"{path}: incomplete checkpoint ({type(err).__name__}: {err})") from None

@@ -364,8 +364,10 @@ class Trainer:
         self.resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
 
     def _snapshot(self) -> dict:
-        """What the divergence guard copies: :meth:`state_dict` and the time budget's fraction spent."""
-        return {**self.state_dict(), "time_fraction": self._time_fraction()}
+        """What the divergence guard copies: :meth:`state_dict` (less the guard's record of rollbacks,
+        which a rollback does not undo) and the time budget's fraction spent."""
+        state = {k: v for k, v in self.state_dict().items() if k != "rollbacks"}
+        return {**state, "time_fraction": self._time_fraction()}
 
     def _roll_back(self, diverged: Diverged) -> str:
         """Resume from the state the guard hands back, at a lower learning rate (the time
@@ -561,6 +563,8 @@ class Trainer:
         }
         if self.resumed_at is not None:  # a rollback's schedules: a resumed build keeps them
             data["resumed_at"] = self.resumed_at
+        if self.guard.rollbacks:  # and its count, so that a later rollback lowers the rate further
+            data["rollbacks"] = [dict(r) for r in self.guard.rollbacks]
         if self.coarse is not None:
             data["coarse_model"] = self.coarse.state_dict()
         return data
@@ -577,6 +581,7 @@ class Trainer:
         if "generator" in data:
             self.generator.set_state(data["generator"])
         self.resumed_at = tuple(data["resumed_at"]) if "resumed_at" in data else None
+        self.guard.rollbacks = [dict(r) for r in data.get("rollbacks", self.guard.rollbacks)]
 
     def drop_data_parallel(self) -> None:
         """Unwrap the DistributedDataParallel render: training with the other ranks is over, and the
