@@ -227,9 +227,9 @@ geometry and labels on the suite's rooms (docs/depth_grid_decay.md)."""
 STEPS = 2000
 """``train.steps`` "auto", with sensor depth or without. Builds with phone-like depth once stopped at
 1600 steps (the depth terms make surfaces early: docs/depth_step_count.md); since the marching went
-to 288 steps (docs/suite.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
+to 288 steps (docs/suite_steps192.md), 2000 steps with depth gave higher held-out mIoU than 1600 on ten of
 the twelve suite rooms, with builds of 55-72 s at 160x120, well within BUILD_SECONDS_WITH_DEPTH
-(docs/depth_2000.md against docs/suite.md's phone-depth rows). Up to 3000 steps with depth (the
+(docs/depth_2000.md against docs/suite_steps192.md's phone-depth rows). Up to 3000 steps with depth (the
 plan ending them at 2482-2741) gave mIoU within 0.0013 of 2000's on three rooms, in builds of 84-85 s
 against 62-67 s (docs/suite_grid_first.md, variant phone-depth-3000)."""
 
@@ -479,7 +479,7 @@ build time known before it starts; its other settings are the fast preset's."""
 # evaluation, train.time_budget "auto"), so that a default build's time is known before it starts
 # (docs/suite.md: this build on rooms of 3x3 to 10x6 m, with and without phone-like depth).
 # 288 marching steps across the box (the suite's rooms: 2-5 cm, living-6x5's 3.6): with 192 (3-8 cm,
-# living's 5.4) chair legs and picture frames came out half transparent (docs/suite.md: variant
+# living's 5.4) chair legs and picture frames came out half transparent (docs/suite_steps192.md: variant
 # steps-192); docs/models.md says what changes with the step (the samples and the density grid's
 # threshold) and what it costs (tools/bench.py's room loses its lamp's pole)
 _FAST = {"sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}

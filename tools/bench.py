@@ -300,6 +300,34 @@ def run_one(spec: dict) -> dict:
     return run_in_child(_one_build, spec)
 
 
+REFERENCE_PASSES = 10
+REFERENCE_POINTS = 16384
+
+
+def reference_seconds(repeats: int = 3) -> float:
+    """How fast this machine is now: seconds of a fixed workload, the best of ``repeats`` (the least
+    disturbed): REFERENCE_PASSES forward and backward passes of the default preset's field (8
+    classes) on REFERENCE_POINTS seeded points, on torch's default threads. The machines these
+    documents run on vary in speed from day to day; the timings of two documents compare through
+    the ratio of their reference times, which tools/bench_suite.py records before each build."""
+    import torch
+
+    from scenelabel.config import preset
+    from scenelabel.fields.model import FieldNetwork
+
+    generator = torch.Generator().manual_seed(0)
+    model = FieldNetwork(preset("fast").field, 8, torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    points = torch.rand(REFERENCE_POINTS, 3, generator=generator) * 2 - 1
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(REFERENCE_PASSES):
+            sigmas, h, _ = model.features(points)
+            (sigmas.mean() + h.mean()).backward()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 

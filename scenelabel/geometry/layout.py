@@ -2,11 +2,11 @@
 where the masks' floor, wall and ceiling meet; their depth for the pixels those classes cover.
 
 Without sensor depth a field learns a room's large plain surfaces from colour alone, and they come
-out soft (docs/suite.md). The masks already say where the floor meets the walls and the walls meet
-the ceiling in every view; with known poses those lines fix the planes to a few millimetres. The
-assumption is the Manhattan world's (planar floor and ceiling normal to "up", walls along two
-perpendicular horizontal directions), which Manhattan-SDF (Guo et al., CVPR 2022) also takes from
-2D semantic masks of floor and wall.
+out soft (docs/depth_suite.md's `-` rows, built before this module). The masks already say where
+the floor meets the walls and the walls meet the ceiling in every view; with known poses those
+lines fix the planes to a few millimetres. The assumption is the Manhattan world's (planar floor
+and ceiling normal to "up", walls along two perpendicular horizontal directions), which
+Manhattan-SDF (Guo et al., CVPR 2022) also takes from 2D semantic masks of floor and wall.
 
 Conventions (docs/conventions.md): cameras are :class:`scenelabel.Cameras` (OpenCV axes, world
 frame); a label image is [H, W] external class ids; depth is the distance along the unit ray.

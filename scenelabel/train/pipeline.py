@@ -428,7 +428,8 @@ def prepare_training(
 
 NO_DEPTH_HINT = (
     "no sensor depth: the geometry comes from the photos alone, so surfaces come out soft and the map misses "
-    "part of them (docs/suite.md); depth from an RGB-D camera or a phone's LiDAR makes them solid (docs/captures.md)"
+    "part of them (docs/depth_suite.md, its `-` rows); depth from an RGB-D camera or a phone's LiDAR makes "
+    "them solid (docs/captures.md)"
 )
 """Said before training when the training rays carry no sensor depth."""
 
