@@ -314,12 +314,6 @@ def run_one(spec: dict) -> dict:
     return run_in_child(_one_build, spec)
 
 
-def reference_seconds() -> float:
-    from bench import reference_seconds  # tools/bench.py: a fixed workload's seconds on this machine now
-
-    return reference_seconds()
-
-
 def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f}"
 
@@ -663,6 +657,8 @@ def main() -> None:
         write_markdown(rows, args.out, command, plot)
         print(f"wrote {args.out}")
         return
+    from bench import reference_seconds  # tools/bench.py, beside this script: a fixed workload's seconds now
+
     command = "python tools/bench_suite.py " + " ".join(sys.argv[1:])
     code = code_version()
     rows = []
