@@ -120,7 +120,9 @@ def test_occupancy_map_bounds_and_codes(field):
 def test_map_voxels_are_read_coarse_to_fine_as_the_rule_says(field):
     """docs/conventions.md, "Density and occupancy": σ of a map voxel is the largest over its n³
     sub-samples where its centre or one of its 26 neighbours' centres has occupancy >=
-    REFINE_OCCUPANCY, its centre's elsewhere; a plain loop over voxels through query_points."""
+    REFINE_OCCUPANCY and not all 27 are occupied, its centre's elsewhere; a plain loop over voxels
+    through query_points."""
+    from scenelabel.query.answers import OCCUPIED_THRESHOLD
     from scenelabel.query.mapping import REFINE_OCCUPANCY, subsample_offsets
 
     voxel, box = 0.1, np.array([[-0.6, -0.6, -0.1], [0.6, 0.6, 0.5]])
@@ -133,14 +135,17 @@ def test_map_voxels_are_read_coarse_to_fine_as_the_rule_says(field):
 
     expected = np.zeros(occ.shape)
     refined = np.zeros(occ.shape, bool)
+    enclosed = np.zeros(occ.shape, bool)
     steps = [-1, 0, 1]
     for ijk in np.ndindex(*occ.shape):
         centre = occ.origin + voxel * np.asarray(ijk, np.float64)
         near = [centre + voxel * np.array([a, b, c], np.float64) for a in steps for b in steps for c in steps]
-        refined[ijk] = (-np.expm1(-density(near) * voxel)).max() >= REFINE_OCCUPANCY
+        near_occ = -np.expm1(-density(near) * voxel)
+        enclosed[ijk] = near_occ.min() >= OCCUPIED_THRESHOLD
+        refined[ijk] = near_occ.max() >= REFINE_OCCUPANCY and not enclosed[ijk]
         sigma = density(centre + offsets).max() if refined[ijk] else density(centre)[0]
         expected[ijk] = -np.expm1(-sigma * voxel)
-    assert 0 < refined.mean() < 1  # both branches are exercised
+    assert 0 < refined.mean() < 1 and enclosed.any()  # every branch is exercised
     np.testing.assert_allclose(occ.occupancy, expected, rtol=1e-4, atol=1e-6)
     # the answer does not depend on how the lattice is split into blocks (each block reads a halo)
     small_blocks = field.occupancy_map(voxel_size=voxel, bounds=box, chunk=3, visibility=False)

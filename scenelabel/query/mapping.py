@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.ndimage import maximum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
@@ -128,9 +128,12 @@ def evaluate_map_block(
 
     Coarse to fine: the field is first read at the voxel centres of the block and a one-voxel
     halo around it; a voxel is then read at its n³ sub-samples (:func:`subsample_offsets`) only
-    where its centre or a neighbour's (26-neighbourhood) has occupancy >= REFINE_OCCUPANCY, and
-    keeps its centre's reading elsewhere. The halo makes a block's answer independent of how the
-    lattice is split into blocks.
+    where its centre or a neighbour's (26-neighbourhood) has occupancy >= REFINE_OCCUPANCY and
+    not all 27 of those centres are occupied (>= OCCUPIED_THRESHOLD), and keeps its centre's
+    reading elsewhere. Sub-samples find the surfaces that pass between centres; a voxel enclosed
+    by occupied centres lies inside a solid, its centre already reads occupied, and most such
+    voxels end UNKNOWN behind the surface. The halo
+    makes a block's answer independent of how the lattice is split into blocks.
 
     Args:
         origin: [3] world centre of voxel [0, 0, 0] of the lattice.
@@ -159,7 +162,9 @@ def evaluate_map_block(
         )
         halo_occ = -np.expm1(-halo_sig * field.frame.scale * voxel_size).reshape(tuple(n + 2 for n in shape))
         core = (slice(1, -1),) * 3
-        refine = (maximum_filter(halo_occ, size=3, mode="constant") >= REFINE_OCCUPANCY)[core].reshape(-1)[inside]
+        near_surface = maximum_filter(halo_occ, size=3, mode="constant") >= REFINE_OCCUPANCY
+        enclosed = minimum_filter(halo_occ, size=3, mode="constant") >= OCCUPIED_THRESHOLD
+        refine = (near_surface & ~enclosed)[core].reshape(-1)[inside]
         sig_n = halo_sig.reshape(halo_occ.shape)[core].reshape(-1)[inside]  # [K], K voxels inside the bounds
         logits = halo_logits.reshape(*halo_occ.shape, n_classes)[core].reshape(len(centres), n_classes)[inside]
         sig_n[refine], logits[refine] = densest_subsample(field, centres[inside][refine], offsets)
