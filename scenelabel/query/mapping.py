@@ -132,8 +132,10 @@ def evaluate_map_block(
     not all 27 of those centres are occupied (>= OCCUPIED_THRESHOLD), and keeps its centre's
     reading elsewhere. Sub-samples find the surfaces that pass between centres; a voxel enclosed
     by occupied centres lies inside a solid, its centre already reads occupied, and most such
-    voxels end UNKNOWN behind the surface. The halo
-    makes a block's answer independent of how the lattice is split into blocks.
+    voxels end UNKNOWN behind the surface (docs/map_ab_enclosed.md: on four suite rooms the same
+    surface, free-space and F-score figures; the hall's map 1.12x faster, the smaller rooms'
+    within the run's noise). The halo makes a block's answer independent of how the lattice is
+    split into blocks.
 
     Args:
         origin: [3] world centre of voxel [0, 0, 0] of the lattice.
@@ -162,8 +164,9 @@ def evaluate_map_block(
         )
         halo_occ = -np.expm1(-halo_sig * field.frame.scale * voxel_size).reshape(tuple(n + 2 for n in shape))
         core = (slice(1, -1),) * 3
-        near_surface = maximum_filter(halo_occ, size=3, mode="constant") >= REFINE_OCCUPANCY
-        enclosed = minimum_filter(halo_occ, size=3, mode="constant") >= OCCUPIED_THRESHOLD
+        # (thresholds first: the filters of boolean arrays are the same answer, cheaper)
+        near_surface = maximum_filter(halo_occ >= REFINE_OCCUPANCY, size=3, mode="constant")
+        enclosed = minimum_filter(halo_occ >= OCCUPIED_THRESHOLD, size=3, mode="constant")
         refine = (near_surface & ~enclosed)[core].reshape(-1)[inside]
         sig_n = halo_sig.reshape(halo_occ.shape)[core].reshape(-1)[inside]  # [K], K voxels inside the bounds
         logits = halo_logits.reshape(*halo_occ.shape, n_classes)[core].reshape(len(centres), n_classes)[inside]
