@@ -29,6 +29,7 @@ __all__ = [
     "SENSOR_FREE_MARGIN",
     "LAYOUT_FREE_MARGIN",
     "LAYOUT_OPEN_RAYS",
+    "POINTS_PAD",
     "config_from_dict",
     "config_to_dict",
     "render_background",
@@ -38,6 +39,12 @@ __all__ = [
 def _check_choice(name: str, value, allowed: tuple[str, ...]) -> None:
     if value not in allowed:
         raise ConfigError(f"unknown {name} {value!r}; choose one of {list(allowed)}")
+
+
+POINTS_PAD = 0.1
+"""Bounds from observed points are padded by this fraction of their longest side on every face
+(:func:`scenelabel.geometry.frame.aabb_from_points`): a wall whose observed points fall short of
+its plane (a coarse field's depth errs both ways) is still inside the box. ``data.bounds_pad``."""
 
 
 @dataclass
@@ -55,6 +62,9 @@ class DataConfig:
     # trains on it as on sensor depth; with sensor depth, the layout fills the sensor's holes on
     # those pixels (a far wall beyond a phone's range). Only where the classes name a floor and walls
     layout_depth: bool = True
+    # where the input has no near/far or aabb, the bounds of the observed points (sensor depth, the
+    # room's layout, or a coarse fit) are padded by this fraction of their longest side on every face
+    bounds_pad: float = POINTS_PAD
 
     def __post_init__(self) -> None:
         if isinstance(self.downscale, bool) or not isinstance(self.downscale, int) or self.downscale < 1:
@@ -69,6 +79,9 @@ class DataConfig:
             raise ConfigError(f"data.video_max_frames must be an integer >= 2, got {n!r}")
         if not isinstance(self.layout_depth, bool):
             raise ConfigError(f"data.layout_depth must be true or false, got {self.layout_depth!r}")
+        pad = self.bounds_pad
+        if isinstance(pad, bool) or not (isinstance(pad, (int, float)) and 0 <= pad <= 1):
+            raise ConfigError(f"data.bounds_pad must be a number in [0, 1], got {pad!r}")
 
 
 @dataclass

@@ -147,6 +147,12 @@ def test_data_scale_must_be_positive_finite(scale):
         DataConfig(scale=scale)
 
 
+@pytest.mark.parametrize("pad", [-0.01, 1.5, float("nan"), True, "0.1", None])
+def test_data_bounds_pad_must_be_a_fraction(pad):
+    with pytest.raises(ConfigError, match="data.bounds_pad"):
+        DataConfig(bounds_pad=pad)
+
+
 def test_data_section_round_trips_and_rejects_unknown_keys():
     config = config_from_dict({"data": {"downscale": 2, "scale": 0.5}})
     assert config.data == DataConfig(downscale=2, scale=0.5)

@@ -96,6 +96,8 @@ def test_bounds_from_points_are_robust_and_padded():
     aabb = aabb_from_points(np.concatenate([points, strays]))
     pad = POINTS_PAD * 6.0
     np.testing.assert_allclose(aabb, [[-3.0 - pad, -2.0 - pad, -pad], [3.0 + pad, 2.0 + pad, 2.5 + pad]], atol=0.1)
+    tight = aabb_from_points(points, pad=0.03)
+    np.testing.assert_allclose(tight, [[-3.18, -2.18, -0.18], [3.18, 2.18, 2.68]], atol=0.1)
     assert aabb_from_points(points[: MIN_BOUNDING_POINTS - 1]) is None
     assert aabb_from_points(np.zeros((500, 3))) is None  # one point repeated bounds nothing
     assert aabb_from_points(np.full((500, 3), np.nan)) is None
@@ -110,6 +112,10 @@ def test_observed_points_bound_a_scene_without_near_far_within_its_frusta():
     aabb, source = aabb_from_cameras(cams, None, points)
     assert source.startswith("observed geometry") and "no near/far" in frusta_source
     np.testing.assert_allclose(aabb, aabb_from_points(points))  # inside the frusta already
+    assert f"padded {POINTS_PAD:.0%} of the longest side" in source
+    tight, tight_source = aabb_from_cameras(cams, None, points, "sensor depth", points_pad=0.03)
+    np.testing.assert_allclose(tight, aabb_from_points(points, pad=0.03))
+    assert tight_source.startswith("sensor depth") and "padded 3% of the longest side" in tight_source
     assert np.prod(aabb[1] - aabb[0]) < 0.01 * np.prod(frusta[1] - frusta[0])
     # points reaching outside the frusta are cut to them
     far_points = np.concatenate([points, points + [0.0, 0.0, 100.0]])

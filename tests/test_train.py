@@ -11,6 +11,7 @@ from scenelabel import SemanticField, TrainingError, build, load_scene, preset, 
 from scenelabel.codes import FREE
 from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
+from scenelabel.geometry.frame import aabb_from_cameras, aabb_from_points
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import CompositeOptions
 from scenelabel.render.sampling import CARVE_MARGIN
@@ -482,6 +483,14 @@ def test_sensor_depth_bounds_the_scene_without_a_coarse_fit(scene, monkeypatch):
     points = pipeline.sensor_depth_points(bare, list(range(len(bare))))
     inside = np.all((points >= aabb[0]) & (points <= aabb[1]), axis=1)
     assert inside.mean() > 0.98
+    # data.bounds_pad sets the pad around the points, and the source says it
+    _, tight, _ = prepare_training(bare, preset("quick", {"data": {"bounds_pad": 0.03}}), torch.device("cpu"))
+    assert "padded 3% of the longest side" in tight["aabb_source"]
+    expected = aabb_from_points(points, pad=0.03)
+    frusta, _ = aabb_from_cameras(bare.cameras)
+    # (the build draws its own sample of the depth points: the same bounds to within a few cm)
+    np.testing.assert_allclose(tight["aabb_world"], np.clip(expected, frusta[0], frusta[1]), atol=0.03)
+    assert np.all(np.asarray(tight["aabb_world"])[0] >= aabb[0]) and np.all(np.asarray(tight["aabb_world"])[1] <= aabb[1])
 
 
 def test_poses_of_another_unit_are_scaled_to_the_sensor_depth(scene, tmp_path):

@@ -66,6 +66,7 @@ VARIANTS: dict[str, dict] = {
     "distortion-0.0005": {"train": {"distortion_weight": 0.0005}},
     "distortion-0.01": {"train": {"distortion_weight": 0.01}},
     "margin-0.05": {"train": {"free_margin": 0.05}},  # the free-space margin layout depth had before
+    "pad-0.03": {"data": {"bounds_pad": 0.03}},  # bounds 3 % of the observed points' longest side beyond them (default 10 %)
     "depth-bg-scene": {"train": {"depth_background": "scene"}},  # rays with depth on the white background, as before
     "depth-bg-random": {"train": {"depth_background": "random"}},  # a random colour behind them, whatever the cameras
     "no-train-stop": {"sampling": {"train_min_trans": 0.0}},  # training evaluates every sample in an occupied cell
@@ -115,6 +116,7 @@ NOTES: dict[str, str] = {
     "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where the training cameras all look one way, and \"scene\", the white background, to cameras all around)",
     "no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4: a ray's samples stop being evaluated once its transmittance is below that)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
+    "pad-0.03": "the bounds of the observed points (here the room's layout) padded by 3 % of their longest side on every face (`data.bounds_pad` 0.03; default 0.1): a smaller box, finer cells",
 }
 # what each phone-depth variant changes, for the document's text (only the variants a run has)
 DEPTH_NOTES: dict[str, str] = {

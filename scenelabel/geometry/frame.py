@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenelabel.config import POINTS_PAD
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.rays import camera_directions_from_pixels
@@ -56,11 +57,6 @@ AABB_PAD = 0.02
 POINTS_PERCENTILES = (0.5, 99.5)
 """Bounds from observed points span these percentiles of the points on each axis (stray points
 beyond them move nothing)."""
-
-POINTS_PAD = 0.1
-"""Bounds from observed points are padded by this fraction of their longest side on every face: a
-wall whose observed points fall short of its plane (a coarse field's depth errs both ways) is
-still inside the box."""
 
 MIN_BOUNDING_POINTS = 100
 """Fewer observed points than this do not bound a scene (the camera frusta do instead)."""
@@ -139,12 +135,13 @@ def near_far_or_fallback(cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
     return near, far
 
 
-def aabb_from_points(points: np.ndarray) -> np.ndarray | None:
-    """Bounds of observed points: POINTS_PERCENTILES per axis, padded by POINTS_PAD of the longest
+def aabb_from_points(points: np.ndarray, pad: float = POINTS_PAD) -> np.ndarray | None:
+    """Bounds of observed points: POINTS_PERCENTILES per axis, padded by ``pad`` of the longest
     side; None for fewer than MIN_BOUNDING_POINTS points or a flat point set.
 
     Args:
         points: [k, 3] world points (e.g. where the training rays of a coarse field end).
+        pad: fraction of the longest side added on every face.
     Returns:
         aabb [2, 3] float64 or None.
     """
@@ -156,18 +153,18 @@ def aabb_from_points(points: np.ndarray) -> np.ndarray | None:
     extent = float((hi - lo).max())
     if not extent > 0:
         return None
-    pad = POINTS_PAD * extent
-    return np.stack([lo - pad, hi + pad])
+    return np.stack([lo - pad * extent, hi + pad * extent])
 
 
 def aabb_from_cameras(
     cameras: Cameras, explicit: np.ndarray | None = None, points: np.ndarray | None = None,
-    points_source: str = "observed geometry",
+    points_source: str = "observed geometry", points_pad: float = POINTS_PAD,
 ) -> tuple[np.ndarray, str]:
     """Scene bounds: explicit ones when given; else, where the cameras have no far and enough
-    observed ``points`` are given, the points' bounds (:func:`aabb_from_points`) within the camera
-    frusta; else the union of the camera frusta over [near, far]. ``points_source`` names where the
-    points came from in the returned word (a coarse fit's "observed geometry", or "sensor depth").
+    observed ``points`` are given, the points' bounds (:func:`aabb_from_points`, padded by
+    ``points_pad`` of their longest side) within the camera frusta; else the union of the camera
+    frusta over [near, far]. ``points_source`` names where the points came from in the returned
+    word (a coarse fit's "observed geometry", or "sensor depth").
 
     Where a camera has no near/far: :func:`near_far_or_fallback`.
 
@@ -187,11 +184,12 @@ def aabb_from_cameras(
     lo, hi = pts.min(0), pts.max(0)
     pad = AABB_PAD * float((hi - lo).max())
     frusta = np.stack([lo - pad, hi + pad])
-    observed = None if points is None or np.all(np.isfinite(cameras.far)) else aabb_from_points(points)
+    observed = None if points is None or np.all(np.isfinite(cameras.far)) else aabb_from_points(points, points_pad)
     if observed is not None:
         clipped = np.stack([np.maximum(observed[0], frusta[0]), np.minimum(observed[1], frusta[1])])
         if np.all(clipped[1] > clipped[0]):
-            return clipped, f"{points_source} ({len(points)} points; the input has no near/far or aabb)"
+            padded = f"padded {points_pad:.0%} of the longest side"
+            return clipped, f"{points_source} ({len(points)} points, {padded}; the input has no near/far or aabb)"
     return frusta, source
 
 

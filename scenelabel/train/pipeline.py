@@ -391,7 +391,7 @@ def prepare_training(
     config = resolve_free_margin(config, from_layout)
     config = resolve_open_rays(config, train_cameras, from_layout)
     config = resolve_depth_background(config, train_cameras)
-    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by)
+    aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by, config.data.bounds_pad)
     if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, train_cameras):
         reached = reaching_cameras(aabb, train_cameras.centres)
         if not np.array_equal(reached, aabb):
