@@ -568,7 +568,7 @@ def _rollbacks(rows: list[dict]) -> list[str]:
     rolled = [r for r in rows if r.get("rollbacks")]
     lines = ["## Rollbacks", ""]
     if not rolled:
-        return [*lines, "No build diverged (scenelabel.train.divergence: none resumed from an earlier state).", ""]
+        return [*lines, "No build that finished diverged (scenelabel.train.divergence: none resumed from an earlier state).", ""]
     for r in rolled:
         told = ", ".join(f"diverged at step {b['diverged_at']}, resumed from step {b['resumed_from']} at {b['lr_factor']:g} "
                          "times the learning rate" for b in r["rollbacks"])
