@@ -17,6 +17,7 @@ from scenelabel.geometry.frame import (
     forward_rig,
     looking_one_way,
     near_far_or_fallback,
+    observed_extent,
 )
 
 
@@ -101,6 +102,21 @@ def test_bounds_from_points_are_robust_and_padded():
     assert aabb_from_points(points[: MIN_BOUNDING_POINTS - 1]) is None
     assert aabb_from_points(np.zeros((500, 3))) is None  # one point repeated bounds nothing
     assert aabb_from_points(np.full((500, 3), np.nan)) is None
+
+
+def test_observed_extent_is_the_points_full_extent_inside_the_box():
+    rng = np.random.default_rng(1)
+    points = rng.uniform([-3.0, -2.0, 0.0], [3.0, 2.0, 2.5], (5000, 3))
+    points[0] = [-3.5, 0.0, 1.0]  # beyond the percentiles, inside the box: still observed
+    points[1] = [0.0, 0.0, 40.0]  # outside the box: left out
+    points[2] = [np.nan, 0.0, 0.0]
+    aabb = np.array([[-4.0, -3.0, -1.0], [4.0, 3.0, 3.0]])
+    extent = observed_extent(points, aabb)
+    inside = points[3:]
+    np.testing.assert_array_equal(extent, [[-3.5, *inside.min(0)[1:]], inside.max(0)])
+    assert observed_extent(points[: MIN_BOUNDING_POINTS - 1], aabb) is None
+    assert observed_extent(np.zeros((500, 3)), aabb) is None  # one point repeated bounds nothing
+    assert observed_extent(points + 100.0, aabb) is None  # none inside the box
 
 
 def test_observed_points_bound_a_scene_without_near_far_within_its_frusta():

@@ -221,6 +221,24 @@ def test_lattice_exact_count_and_limits():
         lattice((0, 0, 0), (1, 1, 1), 0.0)
 
 
+def test_lattice_within_a_box_keeps_the_whole_lattices_voxels_that_meet_it():
+    origin, shape = lattice((0, 0, 0), (1, 2, 3), 0.1)
+    part_origin, part_shape = lattice((0, 0, 0), (1, 2, 3), 0.1, within=((0.25, 0.32, -5.0), (0.55, 0.33, 0.05)))
+    # x: cells [0.2, 0.3) .. [0.5, 0.6) meet [0.25, 0.55]; y: [0.3, 0.4) alone; z: cut at the lattice's start
+    assert part_shape == (4, 1, 1)
+    np.testing.assert_allclose(part_origin, [0.25, 0.35, 0.05])
+    offset = (part_origin - origin) / 0.1
+    np.testing.assert_allclose(offset, np.round(offset), atol=1e-9)  # the same centres as the whole lattice's
+    whole_origin, whole_shape = lattice((0, 0, 0), (1, 2, 3), 0.1, within=((-9, -9, -9), (9, 9, 9)))
+    np.testing.assert_allclose(whole_origin, origin)
+    assert whole_shape == shape
+    assert lattice((0, 0, 0), (1, 2, 3), 0.1, within=((5, 5, 5), (6, 6, 6)))[1] == (1, 1, 1)  # beyond it: one voxel
+    # the limit counts the block's voxels, not the whole lattice's
+    lattice((0, 0, 0), (10, 10, 10), 0.01, max_voxels=1_000_000, within=((0, 0, 0), (0.5, 0.5, 0.5)))
+    with pytest.raises(InputError, match="voxel"):
+        lattice((0, 0, 0), (10, 10, 10), 0.01, max_voxels=1_000_000, within=((0, 0, 0), (2, 2, 2)))
+
+
 @pytest.mark.parametrize("shape, chunk", [((5, 7, 3), 2), ((4, 4, 4), (4, 4, 4)), ((1, 9, 2), (3, 4, 5)), ((6, 1, 1), 64)])
 def test_iter_chunks_covers_each_index_once(shape, chunk):
     count = np.zeros(shape, np.int64)

@@ -297,6 +297,9 @@ def test_a_room_without_near_far_or_aabb_is_bounded_by_what_its_cameras_see(tmp_
     assert static["aabb_source"].startswith("observed geometry")
     interior = np.array([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.6]])  # the walls', floor's and ceiling's inner faces
     assert np.all(aabb[0] <= interior[0]) and np.all(aabb[1] >= interior[1])
+    observed = np.asarray(static["observed_bounds"])  # the default map's box, before its pad
+    assert np.all(observed[0] >= aabb[0]) and np.all(observed[1] <= aabb[1])
+    assert np.all(observed[0] <= interior[0] + 0.1) and np.all(observed[1] >= interior[1] - 0.1)
     volume = np.prod(aabb[1] - aabb[0])
     assert volume < 4.0 * np.prod(room.bounds[1] - room.bounds[0])
     assert volume < 0.2 * np.prod(frusta[1] - frusta[0])

@@ -11,6 +11,7 @@ from scenelabel.geometry.cameras import cameras_to_dict, opengl_to_opencv
 from scenelabel.maps import confidence_from_probs, unit_from_uint8
 from scenelabel.maps.visibility import observed_voxels, project_points, scaled_cameras
 from scenelabel.query.field import TRAIN_CAMERAS_KEY
+from scenelabel.query.mapping import OBSERVED_MAP_PAD
 
 
 @pytest.fixture(scope="module")
@@ -293,6 +294,29 @@ def test_cropped_map_is_occluded_by_surfaces_outside_it(field):
     without_floor, _ = observed_voxels(plain.occupancy, plain.origin, plain.voxel_size, scaled_cameras(field.training_cameras()))
     assert without_floor.mean() > 0.5  # the map alone has no floor to hide the slab
     assert np.mean(m.label == UNKNOWN) >= 0.9  # the short-trained floor has a few holes
+
+
+def test_the_default_map_is_the_modelled_lattice_cut_to_the_observed_geometry(field):
+    """Bounds found from observed points are stored as their extent (``observed_bounds``); the default
+    map holds the voxels of the modelled bounds' lattice that meet it, padded by OBSERVED_MAP_PAD of
+    its longest side: the same voxels and answers as the whole map's, without the space beyond."""
+    assert field.observed_bounds is None  # the toy's files give its box: its maps cover all of it
+    observed = np.array([[-0.6, -0.5, 0.0], [0.4, 0.3, 0.5]])
+    cut = field_with_meta(field, observed_bounds=observed.tolist())
+    whole = field.occupancy_map(voxel_size=0.1, visibility=False)
+    part = cut.occupancy_map(voxel_size=0.1, visibility=False)
+    offset = np.round((part.origin - whole.origin) / 0.1).astype(int)
+    np.testing.assert_allclose(part.origin, whole.origin + 0.1 * offset, atol=1e-9)
+    block = tuple(slice(o, o + n) for o, n in zip(offset, part.shape))
+    np.testing.assert_array_equal(part.label, whole.label[block])
+    np.testing.assert_array_equal(part.probs, whole.probs[block])
+    np.testing.assert_array_equal(part.occupancy, whole.occupancy[block])
+    pad = OBSERVED_MAP_PAD * 1.0  # the observed extent's longest side is 1 m
+    lo, hi = part.origin - 0.05, part.origin + 0.1 * (np.asarray(part.shape) - 0.5)
+    assert np.all(lo <= observed[0] - pad) and np.all(lo > observed[0] - pad - 0.1)
+    assert np.all(hi >= observed[1] + pad) and np.all(hi < observed[1] + pad + 0.1)
+    assert np.prod(part.shape) < 0.5 * np.prod(whole.shape)
+    assert cut.occupancy_map(voxel_size=0.1, bounds=cut.aabb, visibility=False) == whole  # bounds= still rules
 
 
 def test_old_checkpoint_falls_back_to_bounds(field):

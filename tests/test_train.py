@@ -11,7 +11,7 @@ from scenelabel import SemanticField, TrainingError, build, load_scene, preset, 
 from scenelabel.codes import FREE
 from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
-from scenelabel.geometry.frame import aabb_from_cameras, aabb_from_points
+from scenelabel.geometry.frame import aabb_from_cameras, aabb_from_points, observed_extent
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import CompositeOptions
 from scenelabel.render.sampling import CARVE_MARGIN
@@ -483,6 +483,8 @@ def test_sensor_depth_bounds_the_scene_without_a_coarse_fit(scene, monkeypatch):
     points = pipeline.sensor_depth_points(bare, list(range(len(bare))))
     inside = np.all((points >= aabb[0]) & (points <= aabb[1]), axis=1)
     assert inside.mean() > 0.98
+    # their full extent inside the box is stored: the default map's box (query.mapping.map_lattice)
+    np.testing.assert_allclose(static["observed_bounds"], observed_extent(points, aabb), atol=0.05)
     # data.bounds_pad sets the pad around the points, and the source says it
     _, tight, _ = prepare_training(bare, preset("quick", {"data": {"bounds_pad": 0.03}}), torch.device("cpu"))
     assert "padded 3% of the longest side" in tight["aabb_source"]

@@ -25,6 +25,7 @@ __all__ = [
     "looking_one_way",
     "mean_optical_axis",
     "near_far_or_fallback",
+    "observed_extent",
     "FORWARD_MAX_ANGLE_DEG",
 ]
 
@@ -154,6 +155,22 @@ def aabb_from_points(points: np.ndarray, pad: float = POINTS_PAD) -> np.ndarray 
     if not extent > 0:
         return None
     return np.stack([lo - pad * extent, hi + pad * extent])
+
+
+def observed_extent(points: np.ndarray, aabb: np.ndarray) -> np.ndarray | None:
+    """The box of the finite observed ``points`` [k, 3] inside ``aabb`` [2, 3]: their full extent (no
+    percentiles, no pad: a point beyond the bounds of :func:`aabb_from_points` is still geometry a
+    camera saw, unless it lies outside ``aabb``). None where :func:`aabb_from_points` gives none.
+
+    Returns:
+        [2, 3] float64 (min corner, max corner) or None.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo, hi = np.asarray(aabb, dtype=np.float64)
+    points = points[np.all(np.isfinite(points) & (points >= lo) & (points <= hi), axis=1)]
+    if len(points) < MIN_BOUNDING_POINTS or not float((points.max(0) - points.min(0)).max()) > 0:
+        return None
+    return np.stack([points.min(0), points.max(0)])
 
 
 def aabb_from_cameras(

@@ -75,6 +75,7 @@ def lattice(
     bounds_max: Any,
     voxel_size: float,
     max_voxels: int | None = None,
+    within: tuple[Any, Any] | None = None,
 ) -> tuple[np.ndarray, tuple[int, int, int]]:
     """A voxel grid that covers the box ``[bounds_min, bounds_max]``, centred on it.
 
@@ -86,6 +87,9 @@ def lattice(
         bounds_min, bounds_max: [3] world min and max corners of the box to cover.
         voxel_size: voxel edge, world units, > 0.
         max_voxels: raise InputError when the grid would have more voxels than this.
+        within: (min corner, max corner) of a box: keep only the voxels whose cells meet it (at
+            least one per axis): a block of the grid over the whole box, whose voxels are that
+            grid's, not a new grid's.
     Returns:
         origin: [3] float64 world centre of voxel [0, 0, 0].
         shape: (nx, ny, nz).
@@ -97,6 +101,13 @@ def lattice(
         raise InputError(f"bounds_max {hi.tolist()} is below bounds_min {lo.tolist()}", field="bounds")
     counts = np.ceil((hi - lo) / voxel_size * (1.0 - _LATTICE_REL_TOL))
     counts = np.maximum(counts, 1.0)
+    origin = (lo + hi) / 2.0 - (counts - 1.0) / 2.0 * voxel_size
+    if within is not None:  # cell i covers [corner + i v, corner + (i + 1) v)
+        corner = origin - voxel_size / 2.0
+        first = np.clip(np.floor((vec3(within[0], "within min") - corner) / voxel_size), 0.0, counts - 1.0)
+        stop = np.clip(np.ceil((vec3(within[1], "within max") - corner) / voxel_size), first + 1.0, counts)
+        lo, hi = corner + first * voxel_size, corner + stop * voxel_size  # the block's extent, for the message
+        origin, counts = origin + first * voxel_size, stop - first
     total = float(np.prod(counts))
     if max_voxels is not None and total > max_voxels:
         raise InputError(
@@ -104,8 +115,6 @@ def lattice(
             f"= {total:.3g} voxels, more than the limit {max_voxels}; use a larger voxel size",
             field="voxel_size",
         )
-    centre = (lo + hi) / 2.0
-    origin = centre - (counts - 1.0) / 2.0 * voxel_size
     return origin, shape3(counts.astype(np.int64))
 
 

@@ -83,6 +83,8 @@ class SemanticField:
         self.config = meta["config"]
         self.device = next(model.parameters()).device
         self.aabb = np.asarray(meta["aabb_world"], np.float64)  # [2, 3] world bounds
+        observed = meta.get("observed_bounds")  # [2, 3] the observed geometry's extent, or None
+        self.observed_bounds = None if observed is None else np.asarray(observed, np.float64)
         self._aabb_n = model.aabb  # normalised-frame box
         self.marching = Marching.across_box(self._aabb_n, self.config.sampling.n_steps)  # as in training
         self._train_cameras = self.training_cameras()  # outside the bounds, what they saw through is FREE
@@ -445,7 +447,8 @@ class SemanticField:
 
         Args:
             voxel_size: voxel edge in world units (default: :meth:`default_voxel_size`).
-            bounds: (2, 3) world box to cover (default: the modelled bounds).
+            bounds: (2, 3) world box to cover (default: the modelled bounds, cut to the observed
+                geometry: :func:`scenelabel.query.mapping.map_lattice`).
             chunk: voxels per chunk edge.
             visibility: mark voxels no training camera observed as UNKNOWN.
         """

@@ -333,7 +333,8 @@ def write_occupancy_map(
         path: the target directory (``*.zarr``); with a client, on a filesystem every worker
             sees, as must the checkpoint be.
         voxel_size: voxel edge, world units (default: the field's ``default_voxel_size``).
-        bounds: (2, 3) world box to cover (default: the modelled bounds).
+        bounds: (2, 3) world box to cover (default: the modelled bounds, cut to the observed
+            geometry: :func:`scenelabel.query.mapping.map_lattice`).
         zarr_format: 3 (default) or 2.
         chunks: spatial chunk shape of every array (clipped to each level's shape): the unit of
             work and of memory.

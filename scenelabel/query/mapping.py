@@ -66,6 +66,14 @@ fifth of the threshold); docs/map_ab.md measures the change (with the density-on
 1.2-1.4x faster."""
 
 
+OBSERVED_MAP_PAD = 0.03
+"""A map's default box reaches this fraction of the observed geometry's longest side past it on
+every face (:func:`map_lattice`): the surface voxels at its extremes and a margin. The modelled
+bounds reach 10 % past (``data.bounds_pad``), which training needs (a tighter box left
+hall-10x6's walls half transparent: docs/suite_pad.md); the map need not cover that space, most
+of it behind the walls and UNKNOWN."""
+
+
 def occupancy_map(
     field: "SemanticField",
     voxel_size: float | None = None,
@@ -107,7 +115,10 @@ def map_lattice(
 
     Args:
         voxel_size: voxel edge in world units (default: :meth:`SemanticField.default_voxel_size`).
-        bounds: (2, 3) world box to cover (default: the modelled bounds).
+        bounds: (2, 3) world box to cover. Default: the modelled bounds' lattice, cut to the
+            voxels that meet the observed geometry's extent (``observed_bounds``, where the build
+            found its bounds from observed points) padded by OBSERVED_MAP_PAD of its longest side:
+            the same voxels as the whole lattice's, without the space beyond the room's walls.
         max_voxels: refuse (InputError) a lattice of more voxels than this.
     Returns:
         voxel_size (float), origin [3] (world centre of voxel [0, 0, 0]), shape (nx, ny, nz).
@@ -115,8 +126,16 @@ def map_lattice(
     voxel_size = field.default_voxel_size() if voxel_size is None else float(voxel_size)
     if not (np.isfinite(voxel_size) and voxel_size > 0):
         raise InputError(f"voxel_size must be a positive number, got {voxel_size}", field="voxel_size")
-    box = field.aabb if bounds is None else checked_array(bounds, "bounds", 3)
-    origin, shape = lattice(box[0], box[1], voxel_size, max_voxels=max_voxels)
+    if bounds is not None:
+        box = checked_array(bounds, "bounds", 3)
+        origin, shape = lattice(box[0], box[1], voxel_size, max_voxels=max_voxels)
+        return voxel_size, origin, shape
+    observed = field.observed_bounds
+    within = None
+    if observed is not None:
+        pad = OBSERVED_MAP_PAD * float((observed[1] - observed[0]).max())
+        within = (observed[0] - pad, observed[1] + pad)
+    origin, shape = lattice(field.aabb[0], field.aabb[1], voxel_size, max_voxels, within)
     return voxel_size, origin, shape
 
 

@@ -48,7 +48,7 @@ from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import cameras_to_dict
 from scenelabel.geometry.coverage import shows_whole, thinly_seen_fraction, visual_hull_points
 from scenelabel.geometry.depth_scale import scale_from_depth
-from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras
+from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, observed_extent
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.geometry.warps import choose_warp
 from scenelabel.metrics import surface_points_from_depth
@@ -401,6 +401,7 @@ def prepare_training(
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
     config = trainer.config  # with what the trainer resolved (sampling.grid_decay): the checkpoint saves it
     finest = _finest_cell(config, aabb)
+    observed = None if points is None else observed_extent(points, aabb)
     static = {
         "config": config_to_dict(config),
         "class_map": class_map.to_dict(),
@@ -409,6 +410,8 @@ def prepare_training(
         "frame": frame.to_dict(),
         "aabb_world": aabb.tolist(),
         "aabb_source": aabb_source,
+        # the observed geometry's extent: a map's default box (scenelabel.query.mapping.map_lattice)
+        "observed_bounds": None if observed is None else observed.tolist(),
         "aabb_internal": aabb_n.tolist(),
         "warp": trainer.model.warp.to_dict(),
         "frame_id": scene.frame_id,
