@@ -71,7 +71,9 @@ OBSERVED_MAP_PAD = 0.03
 every face (:func:`map_lattice`): the surface voxels at its extremes and a margin. The modelled
 bounds reach 10 % past (``data.bounds_pad``), which training needs (a tighter box left
 hall-10x6's walls half transparent: docs/suite_pad.md); the map need not cover that space, most
-of it behind the walls and UNKNOWN."""
+of it behind the walls and UNKNOWN. docs/map_ab_observed.md, six suite rooms, each build mapped
+whole and cut: the same surface, free-space and F-score figures, UNKNOWN voxels 38-56 % -> 10-22 %,
+maps 1.1-1.7x faster."""
 
 
 def occupancy_map(
