@@ -483,8 +483,12 @@ def test_sensor_depth_bounds_the_scene_without_a_coarse_fit(scene, monkeypatch):
     points = pipeline.sensor_depth_points(bare, list(range(len(bare))))
     inside = np.all((points >= aabb[0]) & (points <= aabb[1]), axis=1)
     assert inside.mean() > 0.98
-    # their full extent inside the box is stored: the default map's box (query.mapping.map_lattice)
-    np.testing.assert_allclose(static["observed_bounds"], observed_extent(points, aabb), atol=0.05)
+    # their and the cameras' full extent inside the box is stored: the default map's box (query.mapping.map_lattice)
+    # (the cameras, outside the box, clamped to it: space between them and the points was seen)
+    centres = bare.cameras[[bare.names.index(n) for n in static["train_views"]]].centres
+    want = observed_extent(np.concatenate([points, np.clip(centres, aabb[0], aabb[1])]), aabb)
+    np.testing.assert_allclose(static["observed_bounds"], want, atol=0.05)
+    assert not np.allclose(want, observed_extent(points, aabb), atol=0.05)  # the cameras widen it here
     # data.bounds_pad sets the pad around the points, and the source says it
     _, tight, _ = prepare_training(bare, preset("quick", {"data": {"bounds_pad": 0.03}}), torch.device("cpu"))
     assert "padded 3% of the longest side" in tight["aabb_source"]

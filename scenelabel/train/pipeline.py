@@ -401,7 +401,11 @@ def prepare_training(
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
     config = trainer.config  # with what the trainer resolved (sampling.grid_decay): the checkpoint saves it
     finest = _finest_cell(config, aabb)
-    observed = None if points is None else observed_extent(points, aabb)
+    # what the training views saw lies between their cameras and the points (a room's layout holds no
+    # furniture: before a forward rig, the furniture nearer than the nearest floor in view); in the box,
+    # between the points and the cameras clamped to it
+    seen_from = np.clip(train_cameras.centres, aabb[0], aabb[1])
+    observed = None if points is None else observed_extent(np.concatenate([points, seen_from]), aabb)
     static = {
         "config": config_to_dict(config),
         "class_map": class_map.to_dict(),
@@ -410,7 +414,7 @@ def prepare_training(
         "frame": frame.to_dict(),
         "aabb_world": aabb.tolist(),
         "aabb_source": aabb_source,
-        # the observed geometry's extent: a map's default box (scenelabel.query.mapping.map_lattice)
+        # the observed space's extent: a map's default box (scenelabel.query.mapping.map_lattice)
         "observed_bounds": None if observed is None else observed.tolist(),
         "aabb_internal": aabb_n.tolist(),
         "warp": trainer.model.warp.to_dict(),
