@@ -128,16 +128,13 @@ def map_lattice(
     voxel_size = field.default_voxel_size() if voxel_size is None else float(voxel_size)
     if not (np.isfinite(voxel_size) and voxel_size > 0):
         raise InputError(f"voxel_size must be a positive number, got {voxel_size}", field="voxel_size")
+    box, within, observed = field.aabb, None, field.observed_bounds
     if bounds is not None:
         box = checked_array(bounds, "bounds", 3)
-        origin, shape = lattice(box[0], box[1], voxel_size, max_voxels=max_voxels)
-        return voxel_size, origin, shape
-    observed = field.observed_bounds
-    within = None
-    if observed is not None:
+    elif observed is not None:
         pad = OBSERVED_MAP_PAD * float((observed[1] - observed[0]).max())
         within = (observed[0] - pad, observed[1] + pad)
-    origin, shape = lattice(field.aabb[0], field.aabb[1], voxel_size, max_voxels, within)
+    origin, shape = lattice(box[0], box[1], voxel_size, max_voxels, within)
     return voxel_size, origin, shape
 
 
