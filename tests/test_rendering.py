@@ -14,6 +14,7 @@ from scenelabel.render.volume import (
     class_log_probs_from_sample_weights,
     class_log_probs_from_scores,
     class_log_probs_from_weights,
+    class_probs_from_sample_weights,
     class_probs_from_weights,
     composite_rgb,
     depth_at_transmittance,
@@ -399,3 +400,39 @@ def test_class_log_probs_over_listed_samples_finite_at_the_extremes(dtype):
     np.testing.assert_allclose(out.detach().exp().sum(-1)[hit].double().numpy(), 1.0, atol=1e-5)
     out.sum().backward()
     assert torch.all(torch.isfinite(w.grad)) and torch.all(torch.isfinite(logits.grad))
+
+
+def test_class_probs_over_listed_samples_match_the_float64_loop_and_the_log_form():
+    """The renders' direct sum (no gradient): eq. 7 as the float64 loop and the log-space form give
+    it, in any sample order; a ray without weight is uniform."""
+    rng = np.random.default_rng(6)
+    d = random_rays(rng)
+    d["sigmas"][2] = 0.0  # an empty ray
+    w, _, _ = weights_from_density(torch.tensor(d["sigmas"]), torch.tensor(d["deltas"]))
+    ref_probs = naive_render(**d)[3]
+    for order in (np.arange(w.numel()), rng.permutation(w.numel())):
+        flat_w, flat_l, rays = _listed(w, torch.tensor(d["logits"]), order)
+        probs = class_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0])
+        np.testing.assert_allclose(probs.numpy(), ref_probs, atol=1e-12)
+        torch.testing.assert_close(probs, class_log_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0]).exp())
+    empty = class_probs_from_sample_weights(torch.zeros(0), torch.zeros(0, 4), torch.zeros(0, dtype=torch.int64), 3)
+    torch.testing.assert_close(empty, torch.full((3, 4), 0.25))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("n_classes", [1, 2, 200])
+def test_class_probs_over_listed_samples_finite_at_the_extremes(dtype, n_classes):
+    """σ/δ sweep (weights from 0 to 1), logits up to ±1e4 and one to 200 classes: finite
+    probabilities in [0, 1] whose rows sum to 1, uniform where the ray has no weight."""
+    pairs = list(itertools.product(SIGMAS, DELTAS))
+    sig = torch.tensor([[s, 1.0, 0.0] for s, _ in pairs] + [[0.0, 0.0, 0.0]], dtype=torch.float64)  # + an empty ray
+    dl = torch.tensor([[d, 0.5, 0.5] for _, d in pairs] + [[0.5, 0.5, 0.5]], dtype=torch.float64)
+    w, _, _ = weights_from_density(sig, dl)
+    logits = torch.randn(len(sig), 3, n_classes, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * 1e4
+    flat_w, flat_l, rays = _listed(w.to(dtype), logits.to(dtype), np.arange(w.numel()))
+    probs = class_probs_from_sample_weights(flat_w, flat_l, rays, len(sig))
+    assert torch.all(torch.isfinite(probs)) and bool(((probs >= 0) & (probs <= 1)).all())
+    np.testing.assert_allclose(probs.sum(-1).double().numpy(), 1.0, atol=1e-5)
+    empty = w.sum(-1) <= 1e-10
+    assert bool(empty[-1])
+    torch.testing.assert_close(probs[empty], torch.full_like(probs[empty], 1.0 / n_classes))

@@ -81,7 +81,7 @@ def test_occupied_at_indexing_and_outside():
 
 
 def test_grid_read_along_rays_matches_the_points():
-    """cells_along + occupied_cells (a marcher's read, no points formed) give the grid's answer at
+    """cells_along + occupied_along (a marcher's read, no points formed) give the grid's answer at
     o + t d for points inside the box; a forward warp has no such read."""
     aabb = torch.tensor([[-1.0, -2.0, 0.5], [3.0, 1.0, 2.0]])
     grid = DensityGrid(BoxWarp(aabb), resolution=7, step=0.01)
@@ -92,8 +92,7 @@ def test_grid_read_along_rays_matches_the_points():
     t = torch.rand(50, 9, generator=g) * 0.5
     points = origins[:, None] + t[..., None] * directions[:, None]
     inside = ((points >= aabb[0]) & (points < aabb[1])).all(-1)
-    start, step = grid.cells_along(origins, directions)
-    along = grid.occupied_cells(start[:, None] + t[..., None] * step[:, None])
+    along = grid.occupied_along(grid.cells_along(origins, directions), t)
     assert int(inside.sum()) > 200
     torch.testing.assert_close(along[inside], grid(points)[inside])
     assert DensityGrid(_forward_warp(), resolution=4, step=0.01).cells_along(origins, directions) is None

@@ -22,6 +22,7 @@ from scenelabel.render.sampling import (
 from scenelabel.render.volume import (
     class_log_probs_from_sample_weights,
     class_log_probs_from_scores,
+    class_probs_from_sample_weights,
     composite_rgb,
     depth_at_transmittance,
     depth_from_weights,
@@ -112,8 +113,9 @@ class RayBundleOutput:
     opacity: torch.Tensor  # [n_rays]
     class_log_probs: torch.Tensor  # [n_rays, C]
     n_evaluated: int  # samples the field evaluated
-    distortion: torch.Tensor  # [n_rays] mip-NeRF 360's L_dist of the weights (a training regulariser)
-    t_opaque: torch.Tensor  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
+    # training's terms (None from render_rays_early_stop, which renders and queries use):
+    distortion: torch.Tensor | None = None  # [n_rays] mip-NeRF 360's L_dist of the weights (a regulariser)
+    t_opaque: torch.Tensor | None = None  # [n_rays] where the transmittance falls to OPAQUE_TRANS (inf: never), no gradient
     front_weight: torch.Tensor | None = None  # [n_rays] Σ w_i over samples ending before options.free_until
     # the evaluated samples (render_rays only): their points [k, 3] (world) and σ [k], no gradient
     sample_points: torch.Tensor | None = None
@@ -239,7 +241,9 @@ def render_rays_early_stop(
         :class:`~scenelabel.render.sampling.DensityGrid` over a box) is read along the rays, not at
         every point.
     Returns:
-        RayBundleOutput; ``n_evaluated`` counts the samples the trunk evaluated.
+        RayBundleOutput without training's terms (``distortion``, ``t_opaque``: None), the class
+        probabilities summed directly (:func:`_composite`'s ``for_query``); ``n_evaluated``
+        counts the samples the trunk evaluated.
     """
     t_min, t_max = field.warp.clip(origins, directions, t_min, t_max)
     t_starts, t_ends = march(field.warp.spacing, t_min, t_max, marching.step, marching.n_samples, None)  # [n_rays, S]
@@ -260,9 +264,11 @@ def render_rays_early_stop(
         rows, cols, points = _occupied_samples(occupancy, cells, (origins, directions), active, (ts, te))
         sigmas, h, raw = field.features(points)
         n_evaluated += len(rows)
-        taus = (sigmas * (te - ts)[rows, cols]).double()  # σ δ of each sample
-        packed = torch.zeros(ts.shape, dtype=torch.float64, device=origins.device).index_put_((rows, cols), taus)
-        before = optical.index_select(0, active).index_select(0, rows) + (packed.cumsum(1) - packed)[rows, cols]
+        flat = rows * ts.shape[1] + cols  # [k] into the segment's [A, s]
+        taus = (sigmas * (te - ts).reshape(-1).index_select(0, flat)).double()  # σ δ of each sample
+        packed = torch.zeros(ts.numel(), dtype=torch.float64, device=origins.device).index_copy_(0, flat, taus)
+        in_front = packed.reshape(ts.shape).cumsum(1).reshape(-1).index_select(0, flat) - taus  # Σ σ δ before, this segment
+        before = optical.index_select(0, active).index_select(0, rows) + in_front
         # T in front of the sample still at least min_trans, and σ δ not faint
         live = ((before < max_optical) & (taus >= faint)).nonzero().squeeze(1)
         rows, cols = rows.index_select(0, live), cols.index_select(0, live)
@@ -280,7 +286,7 @@ def render_rays_early_stop(
         samples = tuple(None if parts[0][k] is None else torch.cat([p[k] for p in parts])[order] for k in range(3))
     else:  # no sample at all: an empty evaluation keeps the shapes right
         samples = _evaluate(field, origins[:0], directions[:0], with_rgb)
-    out = _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), options)
+    out = _composite(field, (rows[order], cols[order]), (t_starts, t_ends), samples, (t_min, t_max), options, for_query=True)
     return replace(out, n_evaluated=n_evaluated)
 
 
@@ -402,9 +408,8 @@ def _occupied_samples(occupancy, cells, rays, active: torch.Tensor, intervals):
         points = _points(origins.index_select(0, active), directions.index_select(0, active), t_mids)
         rows, cols = ((te > ts) & occupancy(points)).nonzero(as_tuple=True)
         return rows, cols, points[rows, cols]
-    start, step = (c.index_select(0, active) for c in cells)
-    coords = start[:, None, :] + t_mids[..., None] * step[:, None, :]  # [A, s, 3]
-    rows, cols = ((te > ts) & occupancy.occupied_cells(coords)).nonzero(as_tuple=True)
+    along = tuple(c.index_select(0, active) for c in cells)  # [A, 3] each
+    rows, cols = ((te > ts) & occupancy.occupied_along(along, t_mids)).nonzero(as_tuple=True)
     ray = active.index_select(0, rows)
     points = origins.index_select(0, ray) + _take(t_mids, rows, cols)[:, None] * directions.index_select(0, ray)
     return rows, cols, points
@@ -437,11 +442,14 @@ def _evaluate(field, points: torch.Tensor, directions: torch.Tensor, with_rgb: b
     return sigmas, None, class_logits
 
 
-def _composite(field, at, intervals, samples, limits, options: CompositeOptions) -> RayBundleOutput:
+def _composite(field, at, intervals, samples, limits, options: CompositeOptions, for_query: bool = False) -> RayBundleOutput:
     """Composite evaluated samples (the pure maths of :mod:`scenelabel.render.volume`).
 
     Skipped samples have σ = 0 and change nothing, so the evaluated ones are moved to the front of
-    each ray: [n_rays, K] with K the largest count, padded with zero-length intervals.
+    each ray: [n_rays, K] with K the largest count, padded with zero-length intervals. ``for_query``
+    (a render or query, without gradients): no training terms (``distortion``, ``t_opaque`` and
+    ``front_weight`` are None), and the class probabilities summed directly
+    (:func:`~scenelabel.render.volume.class_probs_from_sample_weights`), not in log space.
 
     Args:
         at: (rows, cols) [n] each, the evaluated samples, row-major (each ray's in order).
@@ -467,7 +475,10 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
         class_log_probs = class_log_probs_from_scores(semantic_weights, logits)
     else:  # over the evaluated samples only: rays are padded to the longest
         sample_weights = semantic_weights.reshape(-1).index_select(0, packed)
-        class_log_probs = class_log_probs_from_sample_weights(sample_weights, class_logits, rows, n_rays)
+        if for_query:
+            class_log_probs = torch.log(class_probs_from_sample_weights(sample_weights, class_logits, rows, n_rays))
+        else:
+            class_log_probs = class_log_probs_from_sample_weights(sample_weights, class_logits, rows, n_rays)
     rgb = None
     if rgbs is not None:
         rgb = composite_rgb(weights, _padded(rgbs, packed, (n_rays, K), dtype), options.background)
@@ -475,13 +486,12 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions)
     # t_max (≥ 0): the requested far, or where it leaves the box.
     t_hi = t_max.clamp(min=0.0)
     depth = depth_from_weights(weights, t_mids, torch.minimum(t_min, t_hi), t_hi)
+    out = RayBundleOutput(rgb, depth, weights.sum(-1), class_log_probs, n_evaluated=int(rows.shape[0]))
+    if for_query:
+        return out
     s_starts, s_ends = (normalized_distances(field.warp.spacing, t, t_min, t_max) for t in (starts, ends))
-    return RayBundleOutput(
-        rgb=rgb,
-        depth=depth,
-        opacity=weights.sum(-1),
-        class_log_probs=class_log_probs,
-        n_evaluated=int(rows.shape[0]),
+    return replace(
+        out,
         distortion=distortion_from_weights(weights, s_starts, s_ends),
         t_opaque=depth_at_transmittance(packed_sigmas.detach(), starts, ends, OPAQUE_TRANS),
         front_weight=None if options.free_until is None else weight_before(weights, ends, options.free_until),

@@ -533,7 +533,7 @@ class DensityGrid(nn.Module):
     def cells_along(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
         """For a box warp (affine): (start, step) [n_rays, 3] such that the point at distance t along
         ray i lies at cell coordinates start_i + t step_i (cell [i, j, k] spans [i, i + 1) x [j, j + 1)
-        x [k, k + 1)), so that a marcher reads the grid (:meth:`occupied_cells`) without forming
+        x [k, k + 1)), so that a marcher reads the grid (:meth:`occupied_along`) without forming
         the points; None for other warps."""
         if self.warp.kind != "box":
             return None
@@ -541,11 +541,18 @@ class DensityGrid(nn.Module):
         scale = self.resolution / (hi - lo)
         return (origins - lo) * scale, directions * scale
 
-    def occupied_cells(self, coords: torch.Tensor) -> torch.Tensor:
-        """[..., 3] cell coordinates (:meth:`cells_along`) inside the grid -> [...] bool: occupied.
-        A coordinate outside reads the nearest cell (a marcher's samples lie between the box's entry
-        and exit: outside only by rounding)."""
-        return _bits_at(self.bits, coords.long().clamp_(0, self.resolution - 1))
+    def occupied_along(self, cells: tuple[torch.Tensor, torch.Tensor], t: torch.Tensor) -> torch.Tensor:
+        """Whether the cells at distances ``t`` [n_rays, s] along rays with :meth:`cells_along`'s
+        ``cells`` (start, step [n_rays, 3]) are occupied: [n_rays, s] bool. A point outside the
+        grid reads the nearest cell (a marcher's samples lie between the box's entry and exit:
+        outside only by rounding). The cell index is formed axis by axis in int32, without the
+        [n_rays, s, 3] coordinates."""
+        (start, step), r = cells, self.resolution
+        flat = None
+        for axis in range(3):
+            i = torch.addcmul(start[:, axis, None], t, step[:, axis, None]).clamp_(0, r - 1).to(torch.int32)
+            flat = i if flat is None else flat.mul_(r).add_(i)
+        return self.bits.reshape(-1).index_select(0, flat.reshape(-1)).reshape(t.shape)
 
     @property
     def occupied_fraction(self) -> float:

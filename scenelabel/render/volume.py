@@ -48,6 +48,7 @@ __all__ = [
     "class_probs_from_weights",
     "class_log_probs_from_weights",
     "class_log_probs_from_sample_weights",
+    "class_probs_from_sample_weights",
     "class_log_probs_from_scores",
     "distortion_from_weights",
     "weight_before",
@@ -301,6 +302,31 @@ def class_log_probs_from_sample_weights(
     joint = torch.log(torch.where(hit, sums, torch.ones_like(sums))) + shift  # sums >= 1 where hit
     norm = torch.log(torch.where(hit, opacity, torch.ones_like(opacity)))
     return torch.where(hit, joint - norm, torch.full_like(joint, -math.log(n_classes)))
+
+
+def class_probs_from_sample_weights(
+    weights: torch.Tensor, class_logits: torch.Tensor, ray_indices: torch.Tensor, n_rays: int
+) -> torch.Tensor:
+    """P = Σ w_i softmax(l_i) / Σ w_i (eq. 7) over samples given as a flat list with each sample's
+    ray, summed directly: for renders and queries, which need no gradient (training uses
+    :func:`class_log_probs_from_sample_weights`, whose log space keeps the gradient finite). Each
+    term is a weight (at most 1) times a probability, so no sum overflows; a ray whose weights sum
+    to at most OPACITY_EPS (nothing hit) gets the uniform distribution.
+
+    Args:
+        weights: [n] sample weights (eq. 5), ≥ 0, each ray's samples anywhere in the list.
+        class_logits: [n, C].
+        ray_indices: [n] int64, the ray of each sample, in [0, n_rays).
+        n_rays: number of rays.
+    Returns:
+        [n_rays, C] probabilities (each row sums to 1).
+    """
+    n_classes = class_logits.shape[-1]
+    probs = torch.softmax(class_logits.to(weights.dtype), dim=-1)  # [n, C]
+    sums = probs.new_zeros(n_rays, n_classes).index_add_(0, ray_indices, probs * weights[:, None])
+    opacity = weights.new_zeros(n_rays).index_add_(0, ray_indices, weights)[:, None]  # [n_rays, 1]
+    hit = opacity > OPACITY_EPS
+    return torch.where(hit, sums / torch.where(hit, opacity, torch.ones_like(opacity)), 1.0 / n_classes)
 
 
 def class_probs_from_weights(weights: torch.Tensor, class_logits: torch.Tensor) -> torch.Tensor:
