@@ -358,7 +358,8 @@ def _listed(weights: torch.Tensor, logits: torch.Tensor, order: np.ndarray):
 
 def test_class_log_probs_over_listed_samples_match_the_padded_form_and_the_float64_loop():
     """The same eq. 7 as class_log_probs_from_weights, values and gradients, with the samples in any
-    order; a ray without weight is uniform; the naive float64 loop agrees."""
+    order; a ray without weight is uniform; the naive float64 loop agrees, and so does the renders'
+    direct sum (class_probs_from_sample_weights, no gradient)."""
     rng = np.random.default_rng(5)
     d = random_rays(rng)
     d["sigmas"][2] = 0.0  # an empty ray
@@ -374,13 +375,16 @@ def test_class_log_probs_over_listed_samples_match_the_padded_form_and_the_float
         listed = class_log_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0])
         torch.testing.assert_close(listed, padded, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(listed.exp().detach().numpy(), ref_probs, atol=1e-12)
+        direct = class_probs_from_sample_weights(flat_w.detach(), flat_l.detach(), rays, w.shape[0])
+        np.testing.assert_allclose(direct.numpy(), ref_probs, atol=1e-12)
         pick = torch.tensor(rng.normal(size=padded.shape))
         (padded * pick).sum().backward()
         (listed * pick).sum().backward()
         torch.testing.assert_close(w2.grad, w1.grad, rtol=1e-10, atol=1e-12)
         torch.testing.assert_close(l2.grad, l1.grad, rtol=1e-10, atol=1e-12)
-    empty = class_log_probs_from_sample_weights(torch.zeros(0), torch.zeros(0, 4), torch.zeros(0, dtype=torch.int64), 3)
-    torch.testing.assert_close(empty, torch.full((3, 4), -math.log(4)))
+    no_samples = (torch.zeros(0), torch.zeros(0, 4), torch.zeros(0, dtype=torch.int64), 3)
+    torch.testing.assert_close(class_log_probs_from_sample_weights(*no_samples), torch.full((3, 4), -math.log(4)))
+    torch.testing.assert_close(class_probs_from_sample_weights(*no_samples), torch.full((3, 4), 0.25))
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -400,23 +404,6 @@ def test_class_log_probs_over_listed_samples_finite_at_the_extremes(dtype):
     np.testing.assert_allclose(out.detach().exp().sum(-1)[hit].double().numpy(), 1.0, atol=1e-5)
     out.sum().backward()
     assert torch.all(torch.isfinite(w.grad)) and torch.all(torch.isfinite(logits.grad))
-
-
-def test_class_probs_over_listed_samples_match_the_float64_loop_and_the_log_form():
-    """The renders' direct sum (no gradient): eq. 7 as the float64 loop and the log-space form give
-    it, in any sample order; a ray without weight is uniform."""
-    rng = np.random.default_rng(6)
-    d = random_rays(rng)
-    d["sigmas"][2] = 0.0  # an empty ray
-    w, _, _ = weights_from_density(torch.tensor(d["sigmas"]), torch.tensor(d["deltas"]))
-    ref_probs = naive_render(**d)[3]
-    for order in (np.arange(w.numel()), rng.permutation(w.numel())):
-        flat_w, flat_l, rays = _listed(w, torch.tensor(d["logits"]), order)
-        probs = class_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0])
-        np.testing.assert_allclose(probs.numpy(), ref_probs, atol=1e-12)
-        torch.testing.assert_close(probs, class_log_probs_from_sample_weights(flat_w, flat_l, rays, w.shape[0]).exp())
-    empty = class_probs_from_sample_weights(torch.zeros(0), torch.zeros(0, 4), torch.zeros(0, dtype=torch.int64), 3)
-    torch.testing.assert_close(empty, torch.full((3, 4), 0.25))
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
