@@ -545,8 +545,8 @@ class DensityGrid(nn.Module):
         """Whether the cells at distances ``t`` [n_rays, s] along rays with :meth:`cells_along`'s
         ``cells`` (start, step [n_rays, 3]) are occupied: [n_rays, s] bool. A point outside the
         grid reads the nearest cell (a marcher's samples lie between the box's entry and exit:
-        outside only by rounding). The cell index is formed axis by axis in int32, without the
-        [n_rays, s, 3] coordinates."""
+        outside only by rounding). The cell index is formed axis by axis in int32 (exact for grids
+        of up to 1290 cells a side: 1290³ < 2³¹), without the [n_rays, s, 3] coordinates."""
         (start, step), r = cells, self.resolution
         flat = None
         for axis in range(3):
