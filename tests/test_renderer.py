@@ -192,6 +192,18 @@ def test_early_stop_reads_a_box_grid_along_the_rays_as_render_rays_reads_its_poi
         torch.testing.assert_close(getattr(stopped, name), getattr(full, name), rtol=0, atol=1e-6)
 
 
+def test_early_stop_through_a_box_grid_with_rays_that_miss_the_box():
+    """Rays along an axis that miss the box march empty intervals at t = inf (inf x a direction's 0:
+    NaN cell coordinates): no sample, nothing composited, no index error."""
+    grid = DensityGrid(BoxWarp(AABB), resolution=8, step=0.03)
+    grid.bits = torch.ones(8, 8, 8, dtype=torch.bool)
+    o, d = torch.full((3, 3), 10.0), torch.eye(3)
+    t_min, t_max = ray_intervals(o, d, AABB)
+    out = render_rays_early_stop(SlabField(sigma=30.0), grid, o, d, t_min, t_max, Marching(0.03, 80))
+    assert out.n_evaluated == 0
+    torch.testing.assert_close(out.opacity, torch.zeros(3))
+
+
 def test_early_stop_evaluates_less_and_changes_the_answer_by_at_most_the_threshold():
     field = SlabField(sigma=200.0)  # opaque within a few samples of x = 0.2
     o, d, t_min, t_max = rays()

@@ -1,5 +1,7 @@
 """Ray/AABB clipping, uniform marching and the density grid, against naive references."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -93,6 +95,10 @@ def test_grid_read_along_rays_matches_the_points():
     points = origins[:, None] + t[..., None] * directions[:, None]
     inside = ((points >= aabb[0]) & (points < aabb[1])).all(-1)
     along = grid.occupied_along(grid.cells_along(origins, directions), t)
+    # rays along the axes that miss the box: their marched t are inf (inf x a step of 0: NaN), still cells
+    even = DensityGrid(BoxWarp(aabb), resolution=8, step=0.01)  # an even side: a NaN's wrapped index is out of range
+    outside = even.cells_along(torch.full((3, 3), 10.0), torch.eye(3))
+    assert even.occupied_along(outside, torch.full((3, 4), math.inf)).shape == (3, 4)
     assert int(inside.sum()) > 200
     torch.testing.assert_close(along[inside], grid(points)[inside])
     assert DensityGrid(_forward_warp(), resolution=4, step=0.01).cells_along(origins, directions) is None

@@ -545,12 +545,14 @@ class DensityGrid(nn.Module):
         """Whether the cells at distances ``t`` [n_rays, s] along rays with :meth:`cells_along`'s
         ``cells`` (start, step [n_rays, 3]) are occupied: [n_rays, s] bool. A point outside the
         grid reads the nearest cell (a marcher's samples lie between the box's entry and exit:
-        outside only by rounding). The cell index is formed axis by axis in int32 (exact for grids
-        of up to 1290 cells a side: 1290³ < 2³¹), without the [n_rays, s, 3] coordinates."""
+        outside only by rounding; an empty interval's t = inf, times a step of 0 NaN, reads a cell
+        too, clamped after the cast to an integer). The cell index is formed axis by axis in int32
+        (exact for grids of up to 1290 cells a side: 1290³ < 2³¹), without the [n_rays, s, 3]
+        coordinates."""
         (start, step), r = cells, self.resolution
         flat = None
         for axis in range(3):
-            i = torch.addcmul(start[:, axis, None], t, step[:, axis, None]).clamp_(0, r - 1).to(torch.int32)
+            i = torch.addcmul(start[:, axis, None], t, step[:, axis, None]).to(torch.int32).clamp_(0, r - 1)
             flat = i if flat is None else flat.mul_(r).add_(i)
         return self.bits.reshape(-1).index_select(0, flat.reshape(-1)).reshape(t.shape)
 
