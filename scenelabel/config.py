@@ -395,8 +395,9 @@ class TrainConfig:
     # the colour behind a training ray that carries depth: "random" (a new random colour per ray and
     # step: the ray must be opaque by its measured surface, since a room has no backdrop behind it, and a
     # wall left half transparent in front of the white background no longer matches its pixels) |
-    # "scene" (train.background, as every other ray) | "auto": "random" where the training cameras all
-    # look one way (geometry.frame.looking_one_way), "scene" otherwise; the build saves its choice
+    # "scene" (train.background, as every other ray) | "auto": "random" where all the depth is the room
+    # layout's or the training cameras all look one way (geometry.frame.looking_one_way), "scene"
+    # otherwise (a sensor's depth seen from all around); the build saves its choice
     depth_background: str = AUTO
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")

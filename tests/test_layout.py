@@ -437,7 +437,7 @@ def test_build_trains_on_the_layout_depth_unless_asked_not_to(room, tmp_path):
     assert result.field.config.sampling.grid_decay == GRID_DECAY_WITH_DEPTH
     assert result.field.config.sampling.depth_carve is False  # furniture has no depth to guard it from carving
     assert result.field.config.train.free_margin == LAYOUT_FREE_MARGIN
-    assert result.field.config.train.depth_background == "scene"  # cameras all around the room
+    assert result.field.config.train.depth_background == "random"  # the layout's walls: no backdrop behind them
     config.data.layout_depth = False
     result = build(room, tmp_path / "without", config, progress=False)
     assert DEPTH_SOURCE_KEY not in result.field.meta["scene_info"]

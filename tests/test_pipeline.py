@@ -195,16 +195,20 @@ def test_preset_auto_is_voxels_for_forward_facing_cameras_and_fast_otherwise(sma
         assert resolve_preset(preset(name), _forward_cameras(), room=True) == (preset(name), None)
 
 
-def test_depth_background_auto_is_random_where_the_cameras_look_one_way(small_toy):
-    def chosen(config, cameras):
-        return resolve_depth_background(config, cameras).train.depth_background
+def test_depth_background_auto_is_random_where_the_depth_is_the_layouts_or_the_cameras_look_one_way(small_toy):
+    def chosen(config, cameras, from_layout):
+        return resolve_depth_background(config, cameras, from_layout).train.depth_background
 
+    orbit = load_scene(small_toy).cameras
     assert preset().train.depth_background == AUTO
-    assert chosen(preset(), _forward_cameras()) == "random"
-    assert chosen(preset(), load_scene(small_toy).cameras) == "scene"  # an orbit sees through a half-clear wall
+    assert chosen(preset(), _forward_cameras(), from_layout=False) == "random"
+    assert chosen(preset(), _forward_cameras(), from_layout=True) == "random"
+    assert chosen(preset(), orbit, from_layout=True) == "random"  # a room's walls: no backdrop behind them
+    assert chosen(preset(), orbit, from_layout=False) == "scene"  # a sensor's depth from all around: not measured
     for given in ("random", "scene"):  # a choice given stays
-        for cameras in (_forward_cameras(), load_scene(small_toy).cameras):
-            assert chosen(preset("fast", {"train": {"depth_background": given}}), cameras) == given
+        for cameras in (_forward_cameras(), orbit):
+            for from_layout in (False, True):
+                assert chosen(preset("fast", {"train": {"depth_background": given}}), cameras, from_layout) == given
 
 
 def test_open_rays_auto_only_where_the_layout_gives_all_the_depth_and_the_cameras_look_around(small_toy):

@@ -128,18 +128,21 @@ def resolve_open_rays(config: BuildConfig, cameras: Cameras, from_layout: bool) 
     return dataclasses.replace(config, sampling=dataclasses.replace(sc, grid_open_rays=n_open))
 
 
-def resolve_depth_background(config: BuildConfig, cameras: Cameras) -> BuildConfig:
-    """``config`` with ``train.depth_background`` "auto" made "random" where the training ``cameras``
-    all look one way (:func:`scenelabel.geometry.frame.looking_one_way`), "scene" otherwise; a choice
-    given stays. Looking one way, every view sees a surface from the same side, so a wall left half
-    transparent in front of the white background matches its pixels in all of them, and
-    office-5x4-forward's build stayed that way in some training seeds; cameras all around see
-    through such a wall to the room's other side, and there the random colour only cost time
-    (docs/suite_depth_background_inward.md; forward rooms: docs/suite_depth_background.md)."""
+def resolve_depth_background(config: BuildConfig, cameras: Cameras, from_layout: bool) -> BuildConfig:
+    """``config`` with ``train.depth_background`` "auto" made "random" where all the training depth
+    comes from the room's layout (``from_layout``) or the training ``cameras`` all look one way
+    (:func:`scenelabel.geometry.frame.looking_one_way`), "scene" otherwise; a choice given stays.
+    A wall left half transparent in front of the white background can match its pixels, and
+    builds stayed that way for hundreds of steps: office-5x4-forward in some training seeds
+    (docs/suite_depth_background.md), and the rooms seen from inside on a machine that trained
+    1000-1500 steps in the budget (docs/suite_depth_background_stop.md: more steps in the same time
+    and higher worst-room mIoU and surface labels with the random colour). A random colour never
+    matches. With a sensor's depth from cameras all around it was not measured, and there the white
+    background stays."""
     tc = config.train
     if tc.depth_background != AUTO:
         return config
-    choice = DEPTH_RANDOM_BACKGROUND if looking_one_way(cameras) else DEPTH_SCENE_BACKGROUND
+    choice = DEPTH_RANDOM_BACKGROUND if from_layout or looking_one_way(cameras) else DEPTH_SCENE_BACKGROUND
     return dataclasses.replace(config, train=dataclasses.replace(tc, depth_background=choice))
 
 

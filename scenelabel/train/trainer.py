@@ -88,8 +88,8 @@ def backgrounds_for_rays(
     """[n_rays, 3] the colour behind each training ray: ``colours`` where the ray carries a measured
     depth, ``background`` elsewhere (``train.depth_background`` "random"). A measured ray ends at its
     surface, and a room has no backdrop behind it: with the white background a wall left half
-    transparent in front of it matches its pixels in every view of cameras that all look one way, and
-    the field can stay that way (office-5x4-forward, :func:`scenelabel.train.choices.resolve_depth_background`);
+    transparent in front of it can match its pixels, and the field can stay that way (a forward rig's
+    walls, and a bedroom's seen from inside: :func:`scenelabel.train.choices.resolve_depth_background`);
     a random colour never matches."""
     base = torch.zeros(3, dtype=colours.dtype, device=colours.device) if background is None else background
     return torch.where(measured[:, None], colours, base.expand_as(colours))
