@@ -328,6 +328,16 @@ def reference_seconds(repeats: int = 3) -> float:
     return best
 
 
+def reference_line(rows: list[dict]) -> list[str]:
+    """The machine's speed over a run (rows that recorded ``reference_seconds``), as one line; none without."""
+    refs = [r["reference_seconds"] for r in rows if r.get("reference_seconds") is not None]
+    if not refs:
+        return []
+    return [f"Machine speed: a fixed workload (tools/bench.py `reference_seconds`) took {statistics.median(refs):.2f} s "
+            f"before the builds (median; {min(refs):.2f}-{max(refs):.2f}); another document's timings compare with "
+            "these through the ratio of its reference time to this one."]
+
+
 def fmt(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
@@ -392,6 +402,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path | None
         (f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}, torch {__import__('torch').__version__}, "
         f"run on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."),
+        *reference_line(rows),
         "",
         "Scenes (synthetic, exact labels and depth; held out: every 8th view):",
         "",
@@ -642,14 +653,16 @@ def main() -> None:
         key = (spec["scene"], spec["preset"], spec["variant"])
         if key in finished_early:
             continue  # a larger budget would repeat the same run
-        row = run_one(spec)
+        reference = reference_seconds()  # the machine's speed just before the build
+        row = {**run_one(spec), "reference_seconds": reference}
         print(json.dumps(row), flush=True)
         rows.append(row)
         if not row.get("budget_reached", True):  # a failed build says nothing of larger budgets
             finished_early.add(key)
     for spec in probe_specs(rows, args):  # the speed-up target's run (after paper's, whose time sets its budget)
         spec["queries"] = False
-        row = run_one(spec)
+        reference = reference_seconds()
+        row = {**run_one(spec), "reference_seconds": reference}
         print(json.dumps(row), flush=True)
         rows.append(row)
     out = Path(args.out)

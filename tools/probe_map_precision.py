@@ -3,12 +3,15 @@ farther than 5 cm from every true surface, sorted by where they are. Writes docs
 
     .venv/bin/python tools/probe_map_precision.py                         # hall-10x6, three depth captures
     .venv/bin/python tools/probe_map_precision.py --room office-5x4 --captures phone --out /tmp/p.md
+    .venv/bin/python tools/probe_map_precision.py --room living-6x5 --captures none --variants depth-bg-scene - \
+        --out docs/map_precision_background.md                              # no depth: the two backgrounds
     .venv/bin/python tools/probe_map_precision.py --rewrite                # the document again from its .json
 
 Each capture is the suite room written as users' files are, with depth as
 scenelabel.data.synthetic.add_phone_depth makes it (`phone`: its defaults; `phone-no-noise`: noise 0;
-`phone-no-range`: no 5 m range limit), built with the default preset in a fresh subprocess (the
-build of tools/bench_suite.py). Precision is tools/bench_suite.py's: the share of the map's occupied
+`phone-no-range`: no 5 m range limit) or without depth (`none`: the build trains on the room layout
+found from its masks), built with the default preset in a fresh subprocess (the build of
+tools/bench_suite.py), changed by a variant of tools/bench_suite.py (`-`: none). Precision is tools/bench_suite.py's: the share of the map's occupied
 voxel centres within 5 cm of the exact boxes' surfaces (scenelabel.metrics.surface_fscore). A
 false positive (farther) is *inside* a true box (deeper than 5 cm in matter), *beyond the room*
 (outside the floor, ceiling and wall slabs: space no camera can see), or *in the room* (free space
@@ -31,7 +34,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 
-CAPTURES: dict[str, dict] = {
+CAPTURES: dict[str, dict | None] = {
+    "none": None,  # no depth file
     "phone": {},
     "phone-no-noise": {"noise": 0.0},
     "phone-no-range": {"max_range": None},
@@ -69,7 +73,7 @@ def _classify(pts: np.ndarray, boxes, size) -> dict:
 def _one(spec: dict, workdir: str, queue) -> None:
     """Child process: write the room with the capture's depth, build it, classify its map."""
     import torch
-    from bench_suite import _truth_points  # tools/bench_suite.py: the true surface points its F-score uses
+    from bench_suite import VARIANTS, _truth_points  # tools/bench_suite.py: variants, the F-score's true points
 
     from scenelabel import build, load_scene, preset
     from scenelabel import metrics as M
@@ -79,9 +83,16 @@ def _one(spec: dict, workdir: str, queue) -> None:
     torch.set_num_threads(os.cpu_count() or 1)
     room = suite_spec(spec["room"])
     scene_dir = write_suite_scene(Path(workdir) / room.name, room)
-    add_phone_depth(scene_dir, **CAPTURES[spec["capture"]])
+    if CAPTURES[spec["capture"]] is not None:
+        add_phone_depth(scene_dir, **CAPTURES[spec["capture"]])
+    overrides = json.loads(json.dumps(VARIANTS[spec["variant"]]))  # a deep copy
+    if set(overrides) - {"data", "field", "sampling", "train"}:
+        raise SystemExit(f"variant {spec['variant']} is not a config change: {sorted(overrides)}")
     t0 = time.perf_counter()
-    result = build(scene_dir, Path(workdir) / "build", preset("fast", {"output": {"write_map": False}}), progress=False)
+    if spec.get("steps"):  # the same work on a machine of any speed
+        overrides.setdefault("train", {}).update(steps=spec["steps"], time_budget=None)
+    config = preset("fast", {**overrides, "output": {"write_map": False}})
+    result = build(scene_dir, Path(workdir) / "build", config, progress=False)
     seconds = time.perf_counter() - t0
     occ = result.field.occupancy_map(0.05)
     pts = occ.world_from_index(np.argwhere(occ.occupied))
@@ -101,13 +112,13 @@ def write_markdown(rows: list[dict], path: Path, command: str) -> None:
         "",
         (__doc__ or "").split("\n\n", 2)[2].strip(),
         "",
-        "| room | capture | build s (steps) | occupied voxels | precision / recall / F | false: inside a box / beyond the room / in the room | in the room: distance to a surface, 10/50/90 % (m) | in the room: nearest box |",
-        "|---|---|---|---|---|---|---|---|",
+        "| room | capture | variant | build s (steps) | occupied voxels | precision / recall / F | false: inside a box / beyond the room / in the room | in the room: distance to a surface, 10/50/90 % (m) | in the room: nearest box |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         q = r["in_room_distance_quantiles"]
         lines.append(
-            f"| {r['room']} | {r['capture']} | {r['build_seconds']:.0f} ({r['steps']}) | {r['occupied']} | "
+            f"| {r['room']} | {r['capture']} | {r.get('variant', '-')} | {r['build_seconds']:.0f} ({r['steps']}) | {r['occupied']} | "
             f"{r['precision']:.3f} / {r['recall']:.3f} / {r['fscore']:.3f} | {r['inside']} / {r['beyond']} / {r['in_room']} | "
             + ("-" if q is None else " / ".join(f"{v:.3f}" for v in q)) + " | "
             + ", ".join(f"{k} {v}" for k, v in r["nearest"].items()) + " |"
@@ -119,6 +130,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--room", default="hall-10x6")
     parser.add_argument("--captures", nargs="+", default=list(CAPTURES), choices=list(CAPTURES))
+    parser.add_argument("--variants", nargs="+", default=["-"], help="tools/bench_suite.py variants that change the config")
+    parser.add_argument("--steps", type=int, help="train this many steps, no time budget (default: the preset's budget)")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "map_precision.md")
     parser.add_argument("--rewrite", action="store_true", help="rewrite the document from the rows of OUT's .json")
     args = parser.parse_args()
@@ -129,8 +142,8 @@ def main() -> None:
     if args.rewrite:
         data = json.loads(args.out.with_suffix(".json").read_text())
     else:
-        for capture in args.captures:
-            row = run_in_child(_one, {"room": args.room, "capture": capture})
+        for capture, variant in [(c, v) for c in args.captures for v in args.variants]:
+            row = run_in_child(_one, {"room": args.room, "capture": capture, "variant": variant, "steps": args.steps})
             data["rows"].append({**row, "code": code_version()})
             print(json.dumps(row), flush=True)
             args.out.with_suffix(".json").write_text(json.dumps(data, indent=2))
