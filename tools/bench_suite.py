@@ -85,6 +85,7 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-distortion-0.01": {"capture": "phone-depth", "train": {"distortion_weight": 0.01}},
     "phone-depth-planes-256": {"capture": "phone-depth", "field": {"resolutions": [64, 256]}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
+    "phone-depth-bg-random": {"capture": "phone-depth", "train": {"depth_background": "random"}},
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
     "phone-depth-no-fill": {"capture": "phone-depth", "data": {"layout_depth": False}},
     "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
@@ -133,6 +134,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-distortion": "with the distortion term at 0.002 (`train.distortion_weight`; \"auto\" leaves it off where the bounds come from depth)",
     "phone-depth-distortion-0.01": "with the distortion term at 0.01",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
+    "phone-depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives a sensor's depth from cameras all around \"scene\", the white background)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
     "phone-depth-open-16": OPEN_NOTE.format(n=16),
