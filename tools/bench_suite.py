@@ -69,6 +69,7 @@ VARIANTS: dict[str, dict] = {
     "pad-0.03": {"data": {"bounds_pad": 0.03}},  # bounds 3 % of the observed points' longest side beyond them (default 10 %)
     "depth-bg-scene": {"train": {"depth_background": "scene"}},  # rays with depth on the white background, as before
     "depth-bg-random": {"train": {"depth_background": "random"}},  # a random colour behind them, whatever the cameras
+    "depth-weight-0.5": {"train": {"depth_weight": 0.5}},  # the depth terms (here the layout's) 5x the default's
     "no-train-stop": {"sampling": {"train_min_trans": 0.0}},  # training evaluates every sample in an occupied cell
     # the room written with depth as a phone gives it (scenelabel.data.synthetic.add_phone_depth:
     # quarter resolution, 1.5 % noise, holes at edges, on dark surfaces and beyond 5 m): the depth terms train
@@ -115,6 +116,7 @@ NOTES: dict[str, str] = {
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
     "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; \"auto\", the default, gives \"random\", a random colour behind them, where all the depth is the room layout's or the cameras all look one way)",
     "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where all the depth is the room layout's or the training cameras all look one way, and \"scene\", the white background, to a sensor's depth from cameras all around)",
+    "depth-weight-0.5": "the depth terms at 0.5 (`train.depth_weight`; default 0.1): without sensor depth, the room layout's depth and free space pull 5 times harder",
     "no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4: a ray's samples stop being evaluated once its transmittance is below that)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
     "pad-0.03": "the bounds of the observed points (here the room's layout) padded by 3 % of their longest side on every face (`data.bounds_pad` 0.03; default 0.1): a smaller box, finer cells",
