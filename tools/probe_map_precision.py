@@ -4,14 +4,15 @@ farther than 5 cm from every true surface, sorted by where they are. Writes docs
     .venv/bin/python tools/probe_map_precision.py                         # hall-10x6, three depth captures
     .venv/bin/python tools/probe_map_precision.py --room office-5x4 --captures phone --out /tmp/p.md
     .venv/bin/python tools/probe_map_precision.py --room living-6x5 --captures none --variants depth-bg-scene - \
-        --out docs/map_precision_background.md                              # no depth: the two backgrounds
+        --steps 1800 --out docs/map_precision_background.md                 # no depth: the two backgrounds
     .venv/bin/python tools/probe_map_precision.py --rewrite                # the document again from its .json
 
 Each capture is the suite room written as users' files are, with depth as
 scenelabel.data.synthetic.add_phone_depth makes it (`phone`: its defaults; `phone-no-noise`: noise 0;
 `phone-no-range`: no 5 m range limit) or without depth (`none`: the build trains on the room layout
 found from its masks), built with the default preset in a fresh subprocess (the build of
-tools/bench_suite.py), changed by a variant of tools/bench_suite.py (`-`: none). Precision is tools/bench_suite.py's: the share of the map's occupied
+tools/bench_suite.py), changed by a variant of tools/bench_suite.py (`-`: none), for the time
+budget or, with `--steps`, that many steps. Precision is tools/bench_suite.py's: the share of the map's occupied
 voxel centres within 5 cm of the exact boxes' surfaces (scenelabel.metrics.surface_fscore). A
 false positive (farther) is *inside* a true box (deeper than 5 cm in matter), *beyond the room*
 (outside the floor, ceiling and wall slabs: space no camera can see), or *in the room* (free space
@@ -129,7 +130,7 @@ def write_markdown(rows: list[dict], path: Path, command: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--room", default="hall-10x6")
-    parser.add_argument("--captures", nargs="+", default=list(CAPTURES), choices=list(CAPTURES))
+    parser.add_argument("--captures", nargs="+", default=[c for c in CAPTURES if c != "none"], choices=list(CAPTURES))
     parser.add_argument("--variants", nargs="+", default=["-"], help="tools/bench_suite.py variants that change the config")
     parser.add_argument("--steps", type=int, help="train this many steps, no time budget (default: the preset's budget)")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "map_precision.md")
