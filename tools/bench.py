@@ -297,7 +297,9 @@ def run_in_child(target, spec: dict) -> dict:
 
 
 def run_one(spec: dict) -> dict:
-    return run_in_child(_one_build, spec)
+    """One build's row, with the machine's speed just before it (``reference_seconds``)."""
+    reference = reference_seconds()
+    return {**run_in_child(_one_build, spec), "reference_seconds": reference}
 
 
 REFERENCE_PASSES = 10
@@ -653,16 +655,14 @@ def main() -> None:
         key = (spec["scene"], spec["preset"], spec["variant"])
         if key in finished_early:
             continue  # a larger budget would repeat the same run
-        reference = reference_seconds()  # the machine's speed just before the build
-        row = {**run_one(spec), "reference_seconds": reference}
+        row = run_one(spec)
         print(json.dumps(row), flush=True)
         rows.append(row)
         if not row.get("budget_reached", True):  # a failed build says nothing of larger budgets
             finished_early.add(key)
     for spec in probe_specs(rows, args):  # the speed-up target's run (after paper's, whose time sets its budget)
         spec["queries"] = False
-        reference = reference_seconds()
-        row = {**run_one(spec), "reference_seconds": reference}
+        row = run_one(spec)
         print(json.dumps(row), flush=True)
         rows.append(row)
     out = Path(args.out)

@@ -137,8 +137,8 @@ def resolve_depth_background(config: BuildConfig, cameras: Cameras, from_layout:
     (docs/suite_depth_background.md), and the rooms seen from inside on a machine that trained
     1000-1500 steps in the budget (docs/suite_depth_background_stop.md: more steps in the same time
     and higher worst-room mIoU and surface labels with the random colour). A random colour never
-    matches. With a sensor's depth from cameras all around it was not measured, and there the white
-    background stays."""
+    matches. A sensor's depth from cameras all around keeps the white background: the random colour
+    was measured there on two rooms only (docs/suite_phone_depth_background.md), too few to decide."""
     tc = config.train
     if tc.depth_background != AUTO:
         return config
