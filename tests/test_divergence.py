@@ -6,6 +6,8 @@ import torch
 from scenelabel import TrainingError
 from scenelabel.train.divergence import (
     DIVERGENCE_CHECK_STEP,
+    LEAVING_FALL,
+    LEFT_FRACTION,
     MAX_ROLLBACKS,
     MSE_EMA,
     ROLLBACK_LR_FACTOR,
@@ -97,3 +99,44 @@ def test_without_a_copy_a_diverged_run_stops():
     guard = DivergenceGuard(MEAN_COLOUR)  # e.g. a build resumed from a checkpoint mid-run, not yet copied
     with pytest.raises(TrainingError, match="diverged at step 250: .*worse than predicting the mean colour"):
         guard.roll_back(Diverged(250, 2 * MEAN_COLOUR))
+
+
+def test_below_compares_the_smoothed_error_with_a_fraction_of_the_mean_colours():
+    guard = DivergenceGuard(MEAN_COLOUR)
+    assert not guard.below(1.0)  # no error seen yet
+    run(guard, [0.5 * MEAN_COLOUR])
+    assert guard.below(0.5) and guard.below(1.0)
+    assert not guard.below(0.49)
+
+
+def test_a_run_still_leaving_the_mean_colour_is_not_diverged_until_it_stops_falling():
+    """Never below the mean colour's error yet, but falling by more than LEAVING_FALL per SNAPSHOT_EVERY
+    steps: still leaving the fog (a big room on a slow machine). Once it levels off above, it has diverged."""
+    guard = DivergenceGuard(MEAN_COLOUR)
+    rate = 0.5 ** (1 / SNAPSHOT_EVERY)  # the error halves every SNAPSHOT_EVERY steps
+    falling = [8 * MEAN_COLOUR * rate**i for i in range(DIVERGENCE_CHECK_STEP + 50)]
+    step = run(guard, falling)  # at the check the smoothed error is still about 2x the mean colour's
+    assert guard.mse_ema > MEAN_COLOUR and not guard.left and guard.rollbacks == []
+    with pytest.raises(Diverged) as info:  # it levels off above the mean colour's
+        run(guard, [falling[-1]] * SNAPSHOT_EVERY, start=step)
+    assert info.value.mse_ema > LEAVING_FALL * max(guard.recent)
+
+
+def test_a_run_that_left_the_mean_colour_and_climbs_back_is_diverged_even_while_falling():
+    guard = DivergenceGuard(MEAN_COLOUR)
+    step = run(guard, [0.5 * MEAN_COLOUR] * 50 + [20 * MEAN_COLOUR] * 20)  # left, then a climb far above
+    assert guard.left
+    with pytest.raises(Diverged):  # falling back, but from above the mean colour's: the climb counts
+        run(guard, [2 * MEAN_COLOUR] * DIVERGENCE_CHECK_STEP, start=step)
+
+
+def test_a_wobble_about_the_mean_colour_on_the_way_down_is_no_climb_back():
+    """Crossing the mean colour's error from above, the smoothed error wobbles about it: not left
+    (LEFT_FRACTION) until well below it, so a falling run that dips under and back is not diverged."""
+    guard = DivergenceGuard(MEAN_COLOUR)
+    rate = 0.5 ** (1 / DIVERGENCE_CHECK_STEP)  # from 2x the mean colour's to it at the check
+    step = run(guard, [2 * MEAN_COLOUR * rate**i for i in range(DIVERGENCE_CHECK_STEP + 1)])
+    step = run(guard, [0.95 * MEAN_COLOUR] * 5 + [1.01 * MEAN_COLOUR] * 10, start=step)  # under and back
+    assert guard.mse_ema > MEAN_COLOUR and not guard.left and guard.rollbacks == []
+    run(guard, [0.5 * LEFT_FRACTION * MEAN_COLOUR] * 50, start=step)  # well below: left
+    assert guard.left

@@ -11,6 +11,7 @@ from scenelabel.train.losses import (
     class_balance_weights,
     depth_loss,
     free_space_loss,
+    mean_colour_mse,
     photometric_mse,
     semantic_cross_entropy,
     semantic_focal_loss,
@@ -211,3 +212,28 @@ def test_free_space_loss_means_front_weight_over_measured_rays():
     assert math.isclose(float(free_space_loss(front, target)), (0.5 + 0.9 + 0.0) / 3, rel_tol=1e-6)
     assert float(free_space_loss(front, torch.full((4,), float("nan")))) == 0.0
 
+
+
+def test_mean_colour_mse_is_the_variance_of_the_composited_targets():
+    """Against a float64 loop: the MSE of the mean colour over the targets composited on the background;
+    with a random background, on its mean (grey 0.5) plus 1/12 (1 - alpha)^2 for the uniform colour's variance."""
+    gen = torch.Generator().manual_seed(0)
+    rgb = torch.rand(50, 3, generator=gen, dtype=torch.float64)
+    alpha = torch.rand(50, generator=gen, dtype=torch.float64)
+    white = torch.ones(3, dtype=torch.float64)
+
+    def loop(alpha_, background, random_bg):
+        rows = []
+        for i in range(50):
+            a = 1.0 if alpha_ is None else float(alpha_[i])
+            back = [0.5] * 3 if random_bg else [float(b) for b in background]
+            rows.append([float(rgb[i, c]) * a + back[c] * (1 - a) for c in range(3)])
+        means = [sum(r[c] for r in rows) / 50 for c in range(3)]
+        mse = sum((r[c] - means[c]) ** 2 for r in rows for c in range(3)) / 150
+        if random_bg and alpha_ is not None:
+            mse += sum((1 - float(a)) ** 2 for a in alpha_) / 50 / 12
+        return mse
+
+    for alpha_, background, random_bg in [(None, white, False), (alpha, white, False), (alpha, None, True), (None, None, True)]:
+        got = mean_colour_mse(rgb, alpha_, background, random_bg)
+        assert got == pytest.approx(loop(alpha_, background, random_bg), rel=1e-12)

@@ -526,6 +526,29 @@ def test_sensor_depth_turns_the_solid_interior_term_on(scene):
         assert trainer.solid_weight == expected, (train, expected)
 
 
+def test_the_solid_interior_term_waits_for_the_photometric_error_to_fall(scene, monkeypatch):
+    """Past SOLID_START of the run the term is on only while the smoothed photometric error is at most
+    SOLID_ERROR_FRACTION of the mean colour's: in early fog it would fill the fog (hall-10x6 on a slow
+    machine, docs/suite_phone_depth_rooms.md)."""
+    from scenelabel.train import trainer as trainer_module
+
+    calls = []
+    real = trainer_module.solid_interior_loss
+    monkeypatch.setattr(trainer_module, "solid_interior_loss", lambda *a, **k: calls.append(1) or real(*a, **k))
+    config = preset("quick", {"train": {"steps": 8, "time_budget": None}, "output": {"write_map": False}})
+    trainer, _, _ = prepare_training(_with_sensor_depth(load_scene(scene)), config, torch.device("cpu"))
+    assert trainer.solid_weight > 0
+    trainer.state.step = 4  # half the run: past SOLID_START
+    assert trainer.progress() >= trainer_module.SOLID_START
+    guard = trainer.guard
+    for ema, on in [(None, False), (2.0 * guard.mean_colour_mse, False),
+                    (0.9 * trainer_module.SOLID_ERROR_FRACTION * guard.mean_colour_mse, True)]:
+        calls.clear()
+        guard.mse_ema = ema
+        trainer.train_step()
+        assert bool(calls) == on, (ema, on)
+
+
 def test_sensor_depth_on_held_out_views_only_leaves_the_bounds_to_the_coarse_fit(scene):
     """Only the held-out view 0 has sensor depth: the bounds come from the coarse fit, and say so."""
     loaded = load_scene(scene)

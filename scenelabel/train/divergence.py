@@ -24,6 +24,8 @@ __all__ = [
     "DIVERGENCE_CHECK_STEP",
     "Diverged",
     "DivergenceGuard",
+    "LEAVING_FALL",
+    "LEFT_FRACTION",
     "MAX_ROLLBACKS",
     "MSE_EMA",
     "ROLLBACK_LR_FACTOR",
@@ -38,6 +40,19 @@ as the mean training colour (the colour variance) has diverged. A room of plain 
 too high sat just above it on the toy scene on one machine (1.14 times at step 200) and was not
 caught on another (2026-11-27, the same code): the check catches runs that fail
 clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
+
+LEFT_FRACTION = 0.8
+"""A run has left the mean colour once its smoothed error has been at most this fraction of the mean
+colour's; only such a run can climb back. One that crosses the mean colour's error on its way down
+wobbles about it for a few steps (hall-10x6 with phone depth on a slow machine: 0.01194 against
+0.01189 at step 215, 15 steps after it first crossed)."""
+
+LEAVING_FALL = 0.8
+"""A run that has not left the mean colour (LEFT_FRACTION) is still leaving it, not diverged, while
+its smoothed error is at most this times what it was SNAPSHOT_EVERY steps before: a big room on a slow
+machine, its schedules compressed into a few hundred steps of its time budget, sits above the mean
+colour at step 200 and falls through it later (hall-10x6 with phone depth: 0.0181 at step 100, 0.0119
+at 200, the mean colour's 0.0119), and a rollback to the initial state at half the rate spends the budget."""
 
 MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
@@ -77,6 +92,8 @@ class DivergenceGuard:
         # (step, mse_ema then, a deep copy of the state), oldest first
         self.snapshots: deque[tuple[int, float | None, dict]] = deque(maxlen=2)
         self.rollbacks: list[dict] = []  # {"diverged_at", "resumed_from", "lr_factor"} per rollback
+        self.left = False  # whether the smoothed error has been at most LEFT_FRACTION of the mean colour's
+        self.recent: deque[float] = deque(maxlen=SNAPSHOT_EVERY)  # the smoothed error of the last steps
 
     def keep(self, step: int, state_dict: Callable[[], dict]) -> None:
         """Called before each step: every SNAPSHOT_EVERY steps, copies ``state_dict()`` if the
@@ -87,13 +104,24 @@ class DivergenceGuard:
         if initial or (self.mse_ema is not None and self.mse_ema <= self.mean_colour_mse):
             self.snapshots.append((step, self.mse_ema, copy.deepcopy(state_dict())))
 
+    def below(self, fraction: float) -> bool:
+        """Whether the smoothed error is known and at most ``fraction`` of the mean colour's."""
+        return self.mse_ema is not None and self.mse_ema <= fraction * self.mean_colour_mse
+
     def observe(self, step: int, mse: float) -> None:
         """Adds one step's MSE (the mean over data-parallel ranks: every rank decides alike) to
         the smoothed error; raises :class:`Diverged` from DIVERGENCE_CHECK_STEP on where it is
-        worse than the mean colour's."""
+        worse than the mean colour's, unless the run has not left it (LEFT_FRACTION) and is still
+        falling (LEAVING_FALL)."""
         self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
-        if step >= DIVERGENCE_CHECK_STEP and self.mse_ema > self.mean_colour_mse:
-            raise Diverged(step, self.mse_ema)
+        self.left = self.left or self.mse_ema <= LEFT_FRACTION * self.mean_colour_mse
+        before = self.recent[0] if len(self.recent) == self.recent.maxlen else None
+        self.recent.append(self.mse_ema)
+        if step < DIVERGENCE_CHECK_STEP or self.mse_ema <= self.mean_colour_mse:
+            return
+        if not self.left and before is not None and self.mse_ema <= LEAVING_FALL * before:
+            return
+        raise Diverged(step, self.mse_ema)
 
     def roll_back(self, diverged: Diverged) -> tuple[int, dict]:
         """(the step of the older kept copy, the copy) to resume from at ROLLBACK_LR_FACTOR times
@@ -109,6 +137,8 @@ class DivergenceGuard:
         while len(self.snapshots) > 1:
             self.snapshots.pop()
         step, self.mse_ema, state = self.snapshots[0]
+        self.left = self.mse_ema is not None and self.mse_ema <= LEFT_FRACTION * self.mean_colour_mse
+        self.recent = deque(maxlen=SNAPSHOT_EVERY)
         self.rollbacks.append(
             {"diverged_at": diverged.step, "resumed_from": step, "lr_factor": ROLLBACK_LR_FACTOR ** (len(self.rollbacks) + 1)}
         )

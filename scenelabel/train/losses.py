@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 
 __all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights", "total_variation",
-           "total_variation_grad", "solid_interior_loss", "depth_loss", "free_space_loss", "composite_target"]
+           "total_variation_grad", "solid_interior_loss", "depth_loss", "free_space_loss", "composite_target",
+           "mean_colour_mse"]
 
 SOLID_TAU = 1.4
 """The solid-interior term asks for this optical depth per marching step inside surfaces: one step
@@ -99,6 +100,25 @@ def composite_target(rgb, alpha, background):
     a = alpha[..., None]
     out = rgb * a
     return out if background is None else out + background * (1.0 - a)
+
+
+def mean_colour_mse(rgb: torch.Tensor, alpha: torch.Tensor | None, background, random_background: bool) -> float:
+    """The photometric MSE of predicting every target as their mean colour: the colour variance of
+    the targets (:func:`composite_target` on ``background``; with ``random_background`` composited on
+    its mean, 0.5 grey, plus the uniform colour's variance 1/12 weighted by (1 - alpha)^2).
+
+    Args:
+        rgb: [n, 3] stored colours; alpha: [n] or None (opaque).
+        background: what :func:`composite_target` takes (ignored with ``random_background``).
+        random_background: a new uniform random colour behind each ray.
+    Returns:
+        float.
+    """
+    composited = composite_target(rgb, alpha, 0.5 if random_background else background)
+    mse = float(composited.var(0, unbiased=False).mean())
+    if alpha is not None and random_background:
+        mse += float(((1.0 - alpha) ** 2).mean()) / 12.0
+    return mse
 
 
 def photometric_mse(rgb: torch.Tensor, target: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:

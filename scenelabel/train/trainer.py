@@ -51,6 +51,7 @@ from scenelabel.train.losses import (
     composite_target,
     depth_loss,
     free_space_loss,
+    mean_colour_mse,
     photometric_mse,
     semantic_cross_entropy,
     semantic_focal_loss,
@@ -65,8 +66,14 @@ TV_SLAB = 16
 (``train.tv_weight``): a stochastic estimate of the whole grid's mean, at a fraction of the cost."""
 
 SOLID_START = 0.25
-"""The solid-interior term is on from this fraction of the run (:meth:`Trainer.progress`): surfaces
+"""The solid-interior term is on from this fraction of the run (:meth:`Trainer.progress`), and only
+while the smoothed photometric error is at most SOLID_ERROR_FRACTION of the mean colour's: surfaces
 first, so that the points it fills lie behind surfaces, not in early fog."""
+
+SOLID_ERROR_FRACTION = 0.5
+"""Surfaces have formed where the smoothed photometric error is at most this fraction of the mean colour's
+(:class:`~scenelabel.train.divergence.DivergenceGuard`). On a slow machine, on at a quarter alone, the term
+filled hall-10x6's fog until its builds rolled back (docs/suite_phone_depth_rooms.md)."""
 
 GRID_ALL_CELLS_UPDATES = 4
 """The first this-many occupancy-grid refreshes visit every cell; later ones the occupied cells plus
@@ -352,15 +359,8 @@ class Trainer:
             self.rays_by_class = grouped if len(grouped[1]) > 0 else None
         self.state = TrainState()
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
-        # the colour variance of the targets (with alpha: composited; a random background adds its
-        # uniform variance 1/12 weighted by (1 - alpha)^2)
-        pool_alpha = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool]
-        random_background = tc.background == RANDOM_BACKGROUND
-        pool_rgb = composite_target(self.rays.rgb[self.ray_pool], pool_alpha, 0.5 if random_background else self.background)
-        mean_colour_mse = float(pool_rgb.var(0, unbiased=False).mean())
-        if pool_alpha is not None and random_background:
-            mean_colour_mse += float(((1.0 - pool_alpha) ** 2).mean()) / 12.0
-        self.guard = DivergenceGuard(mean_colour_mse)
+        alpha, random_bg = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool], tc.background == RANDOM_BACKGROUND
+        self.guard = DivergenceGuard(mean_colour_mse(self.rays.rgb[self.ray_pool], alpha, self.background, random_bg))
         self.resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
 
     def _snapshot(self) -> dict:
@@ -482,7 +482,7 @@ class Trainer:
             fine_jitter = torch.rand(n_rays, sc.n_fine, generator=self.ray_generator).to(self.device)
         solid_offsets = None
         solid_weight = self.solid_weight
-        if solid_weight > 0 and self.progress() >= SOLID_START:
+        if solid_weight > 0 and self.progress() >= SOLID_START and self.guard.below(SOLID_ERROR_FRACTION):
             u = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
             solid_offsets = u * tc.solid_depth_steps * self.marching.step
         r = self.rays
