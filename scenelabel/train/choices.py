@@ -137,8 +137,9 @@ def resolve_depth_background(config: BuildConfig, cameras: Cameras, from_layout:
     (docs/suite_depth_background.md), and the rooms seen from inside on a machine that trained
     1000-1500 steps in the budget (docs/suite_depth_background_stop.md: more steps in the same time
     and higher worst-room mIoU and surface labels with the random colour). A random colour never
-    matches. A sensor's depth from cameras all around keeps the white background: the random colour
-    was measured there on two rooms only (docs/suite_phone_depth_background.md), too few to decide."""
+    matches. A sensor's depth from cameras all around keeps the white background: with the random colour
+    eleven suite rooms of twelve were better, but the two biggest stalled at step 200 on a slow machine
+    (docs/suite_phone_depth_rooms.md, docs/suite_phone_depth_early.md)."""
     tc = config.train
     if tc.depth_background != AUTO:
         return config
