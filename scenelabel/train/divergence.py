@@ -44,15 +44,15 @@ clearly, and tests/test_train.py checks a learning rate 1000 times too high."""
 LEFT_FRACTION = 0.8
 """A run has left the mean colour once its smoothed error has been at most this fraction of the mean
 colour's; only such a run can climb back. One that crosses the mean colour's error on its way down
-wobbles about it for a few steps (hall-10x6 with phone depth on a slow machine: 0.01194 against
-0.01189 at step 215, 15 steps after it first crossed)."""
+wobbles about it for a few steps (a probe of hall-10x6 with phone depth on a slow machine, outside the
+repo's scripts: 0.01194 against 0.01189 at step 215, just after it first crossed; docs/models.md)."""
 
 LEAVING_FALL = 0.8
 """A run that has not left the mean colour (LEFT_FRACTION) is still leaving it, not diverged, while
 its smoothed error is at most this times what it was SNAPSHOT_EVERY steps before: a big room on a slow
 machine, its schedules compressed into a few hundred steps of its time budget, sits above the mean
-colour at step 200 and falls through it later (hall-10x6 with phone depth: 0.0181 at step 100, 0.0119
-at 200, the mean colour's 0.0119), and a rollback to the initial state at half the rate spends the budget."""
+colour at step 200 and falls through it later (the same probe: 0.0181 at step 100, 0.0119 at 200, the
+mean colour's 0.0119), and a rollback to the initial state at half the rate spends the budget."""
 
 MSE_EMA = 0.1
 """Weight of the newest step in the smoothed MSE used by the divergence check."""
