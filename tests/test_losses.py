@@ -213,7 +213,6 @@ def test_free_space_loss_means_front_weight_over_measured_rays():
     assert float(free_space_loss(front, torch.full((4,), float("nan")))) == 0.0
 
 
-
 def test_mean_colour_mse_is_the_variance_of_the_composited_targets():
     """Against a float64 loop: the MSE of the mean colour over the targets composited on the background;
     with a random background, on its mean (grey 0.5) plus 1/12 (1 - alpha)^2 for the uniform colour's variance."""

@@ -101,7 +101,7 @@ class DivergenceGuard:
         if step % SNAPSHOT_EVERY or (self.snapshots and self.snapshots[-1][0] == step):  # (resumed from it)
             return
         initial = step == 0 and not self.snapshots
-        if initial or (self.mse_ema is not None and self.mse_ema <= self.mean_colour_mse):
+        if initial or self.below(1.0):
             self.snapshots.append((step, self.mse_ema, copy.deepcopy(state_dict())))
 
     def below(self, fraction: float) -> bool:
@@ -114,10 +114,10 @@ class DivergenceGuard:
         worse than the mean colour's, unless the run has not left it (LEFT_FRACTION) and is still
         falling (LEAVING_FALL)."""
         self.mse_ema = mse if self.mse_ema is None else (1 - MSE_EMA) * self.mse_ema + MSE_EMA * mse
-        self.left = self.left or self.mse_ema <= LEFT_FRACTION * self.mean_colour_mse
+        self.left = self.left or self.below(LEFT_FRACTION)
         before = self.recent[0] if len(self.recent) == self.recent.maxlen else None
         self.recent.append(self.mse_ema)
-        if step < DIVERGENCE_CHECK_STEP or self.mse_ema <= self.mean_colour_mse:
+        if step < DIVERGENCE_CHECK_STEP or self.below(1.0):
             return
         if not self.left and before is not None and self.mse_ema <= LEAVING_FALL * before:
             return
@@ -137,7 +137,7 @@ class DivergenceGuard:
         while len(self.snapshots) > 1:
             self.snapshots.pop()
         step, self.mse_ema, state = self.snapshots[0]
-        self.left = self.mse_ema is not None and self.mse_ema <= LEFT_FRACTION * self.mean_colour_mse
+        self.left = self.below(LEFT_FRACTION)
         self.recent = deque(maxlen=SNAPSHOT_EVERY)
         self.rollbacks.append(
             {"diverged_at": diverged.step, "resumed_from": step, "lr_factor": ROLLBACK_LR_FACTOR ** (len(self.rollbacks) + 1)}
