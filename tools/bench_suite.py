@@ -153,6 +153,9 @@ for _seed in SEEDS:
     VARIANTS[f"depth-bg-scene-seed-{_seed}"] = {"train": {"depth_background": "scene", "seed": _seed}}
     VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
     DEPTH_NOTES[f"phone-depth-seed-{_seed}"] = f"the default preset with training seed {_seed} (`train.seed`; default 0)"
+    VARIANTS[f"phone-depth-bg-random-seed-{_seed}"] = {"capture": "phone-depth",
+                                                       "train": {"depth_background": "random", "seed": _seed}}
+    DEPTH_NOTES[f"phone-depth-bg-random-seed-{_seed}"] = f"as `phone-depth-bg-random` with training seed {_seed}"
 
 
 def seed_family(variant: str) -> tuple[str, int]:
