@@ -103,6 +103,9 @@ class FieldConfig:
     view_encoding: str = "sh"  # sh: spherical harmonics degree 2 | positional: pe_view_frequencies
     pe_view_frequencies: int = 4
     density_bias: float = -1.0  # σ = exp(raw + density_bias) (trunc_exp): low initial density
+    # the colour sigmoid's gradient is at least its slope at this |logit| (fields.model.live_sigmoid; 0: the
+    # plain sigmoid's): a channel driven deep while the field is still transparent can learn again
+    colour_live_logit: float = 0.0
     class_head: str = "linear"  # linear: scalar σ + class head (eq. 6) | density: per-class σ_j (eq. 5)
     density_combine: str = "sum"  # with class_head=density: σ = sum_j σ_j or max_j σ_j (eq. 4)
     semantic_rendering: str = "probs"  # probs: composite softmax per sample (eq. 7) | scores: softmax after (eq. 3)
@@ -121,6 +124,9 @@ class FieldConfig:
             raise ConfigError(f"field.layers must be an integer >= 2, got {self.layers!r}")
         if self.skip_layer is not None and not (isinstance(self.skip_layer, int) and 0 < self.skip_layer < self.layers):
             raise ConfigError(f"field.skip_layer must be None or in 1..{self.layers - 1}, got {self.skip_layer!r}")
+        live = self.colour_live_logit
+        if isinstance(live, bool) or not (isinstance(live, (int, float)) and math.isfinite(live) and live >= 0):
+            raise ConfigError(f"field.colour_live_logit must be a finite number >= 0, got {live!r}")
         _check_choice("field.class_head", self.class_head, ("linear", "density"))
         _check_choice("field.density_combine", self.density_combine, ("sum", "max"))
         _check_choice("field.semantic_rendering", self.semantic_rendering, ("probs", "scores"))

@@ -35,6 +35,7 @@ PROBE_RAYS = 20_000  # held-out pixel rays probed per room
 TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F-score's recall
 VARIANTS: dict[str, dict] = {
     "-": {},
+    "live-4": {"field": {"colour_live_logit": 4.0}},
     "no-layout": {"data": {"layout_depth": False}},
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
@@ -87,6 +88,9 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-planes-256": {"capture": "phone-depth", "field": {"resolutions": [64, 256]}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-bg-random": {"capture": "phone-depth", "train": {"depth_background": "random"}},
+    "phone-depth-live-4": {"capture": "phone-depth", "field": {"colour_live_logit": 4.0}},
+    "phone-depth-bg-random-live-4": {"capture": "phone-depth", "field": {"colour_live_logit": 4.0},
+                                     "train": {"depth_background": "random"}},
     "phone-depth-no-carve": {"capture": "phone-depth", "sampling": {"depth_carve": False, "depth_ray_end": 0.0}},
     "phone-depth-no-fill": {"capture": "phone-depth", "data": {"layout_depth": False}},
     "phone-depth-carve": {"capture": "phone-depth", "sampling": {"depth_carve": True, "depth_carve_until": 0.5, "depth_ray_end": 2.0}},
@@ -98,6 +102,8 @@ OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the tra
              "step whatever the density grid holds, for the first half of the run, their colour error weighted back to "
              "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": 16 in a room seen from "
              "inside whose training depth is all the layout's, else 0)")
+LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4; default 0, "
+             "the plain sigmoid's): a colour channel driven deep in the first steps learns again")
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
@@ -107,6 +113,7 @@ NOTES: dict[str, str] = {
     "no-open": "no rays that ignore the density grid (`sampling.grid_open_rays` 0; \"auto\", the default, adds 16 a step to rooms seen from inside whose depth is all the layout's)",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
+    "live-4": LIVE_NOTE,
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
@@ -136,6 +143,8 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-distortion": "with the distortion term at 0.002 (`train.distortion_weight`; \"auto\" leaves it off where the bounds come from depth)",
     "phone-depth-distortion-0.01": "with the distortion term at 0.01",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
+    "phone-depth-live-4": LIVE_NOTE,
+    "phone-depth-bg-random-live-4": "as `phone-depth-bg-random`, and " + LIVE_NOTE,
     "phone-depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives a sensor's depth from cameras all around \"scene\", the white background)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
@@ -156,6 +165,9 @@ for _seed in SEEDS:
     VARIANTS[f"phone-depth-bg-random-seed-{_seed}"] = {"capture": "phone-depth",
                                                        "train": {"depth_background": "random", "seed": _seed}}
     DEPTH_NOTES[f"phone-depth-bg-random-seed-{_seed}"] = f"as `phone-depth-bg-random` with training seed {_seed}"
+    VARIANTS[f"phone-depth-bg-random-live-4-seed-{_seed}"] = {
+        "capture": "phone-depth", "field": {"colour_live_logit": 4.0}, "train": {"depth_background": "random", "seed": _seed}}
+    DEPTH_NOTES[f"phone-depth-bg-random-live-4-seed-{_seed}"] = f"as `phone-depth-bg-random-live-4` with training seed {_seed}"
 
 
 def seed_family(variant: str) -> tuple[str, int]:

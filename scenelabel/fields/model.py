@@ -16,7 +16,7 @@ from scenelabel.errors import ConfigError
 from scenelabel.fields.encodings import DenseGrid, Positional, TriPlane, sh_directions
 from scenelabel.geometry.warps import BoxWarp
 
-__all__ = ["FieldNetwork", "build_encoding", "dense_grid_shape", "trunc_exp", "combine_class_densities"]
+__all__ = ["FieldNetwork", "build_encoding", "dense_grid_shape", "trunc_exp", "live_sigmoid", "combine_class_densities"]
 
 SH_DIM = 9
 TRUNC_EXP_MAX = 15.0
@@ -40,6 +40,40 @@ class _TruncExp(torch.autograd.Function):
 def trunc_exp(x: torch.Tensor) -> torch.Tensor:
     """exp(x), its gradient computed with x clamped at TRUNC_EXP_MAX."""
     return _TruncExp.apply(x)
+
+
+class _LiveSigmoid(torch.autograd.Function):
+    """sigmoid(x) with the gradient of sigmoid(clamp(x, -live, live))."""
+
+    @staticmethod
+    def forward(ctx, x, live):
+        ctx.save_for_backward(x)
+        ctx.live = live
+        return torch.sigmoid(x)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        s = torch.sigmoid(x.clamp(-ctx.live, ctx.live))
+        return grad * s * (1.0 - s), None
+
+
+def live_sigmoid(x: torch.Tensor, live: float) -> torch.Tensor:
+    """sigmoid(x), its gradient that of x clamped to [-live, live] (``field.colour_live_logit``;
+    ``live`` 0: the plain sigmoid, same gradient), as trunc_exp bounds the density's.
+
+    Why: while the field is still transparent, a rendered pixel is mostly background and every
+    sample's colour gradient points the same way; Adam moves each weight by about its learning
+    rate whatever the gradient's size, and a channel's logits can dive to -20 in the first
+    hundred steps, where the sigmoid's slope (2e-9) no longer lets the channel learn. The field
+    then matches the missing channel with the background seen through half-transparent walls.
+    Below ``live`` the slope stays that at ``live`` (0.018 at 4), so the photometric loss pulls
+    the channel back once surfaces form; the forward value, and every fit inside [-live, live],
+    are the sigmoid's.
+    """
+    if live <= 0:
+        return torch.sigmoid(x)
+    return _LiveSigmoid.apply(x, float(live))
 
 
 def dense_grid_shape(warp: nn.Module, resolution: int) -> tuple[int, int, int]:
@@ -208,12 +242,12 @@ class FieldNetwork(nn.Module):
         if directions is None:
             return None, logits
         if self.direct:
-            return torch.sigmoid(h[:, :3]), logits
+            return live_sigmoid(h[:, :3], self.config.colour_live_logit), logits
         rgb_in = h
         if self.config.view_dependent:
             views = sh_directions(directions) if self.view_encoding is None else self.view_encoding(directions)
             rgb_in = torch.cat([h, views], -1)
-        return torch.sigmoid(self.rgb_head(rgb_in)), logits
+        return live_sigmoid(self.rgb_head(rgb_in), self.config.colour_live_logit), logits
 
     def forward(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """points [n, 3], unit directions [n, 3] -> σ [n], rgb [n, 3], class_logits [n, C]."""
