@@ -8,7 +8,7 @@ from scenelabel import SemanticField, build, preset, write_toy_scene
 from scenelabel.config import FieldConfig
 from scenelabel.errors import ConfigError
 from scenelabel.fields.encodings import trilinear_from_grid
-from scenelabel.fields.model import FieldNetwork, SkipMLP, combine_class_densities
+from scenelabel.fields.model import FieldNetwork, SkipMLP, combine_class_densities, live_sigmoid
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 VARIANTS = [
@@ -221,3 +221,40 @@ def test_voxels_preset_is_a_direct_dense_grid():
         FieldConfig(encoding="dense", head="direct")
     with pytest.raises(ConfigError, match="head"):
         FieldConfig(head="kan")
+
+
+def reference_live_sigmoid_grad(x: float, live: float) -> float:
+    """d sigmoid / dx at x clamped to [-live, live] (live 0: unclamped), in float64."""
+    z = x if live <= 0 else min(max(x, -live), live)
+    s = 1.0 / (1.0 + np.exp(-np.float64(z)))
+    return float(s * (1.0 - s))
+
+
+@pytest.mark.parametrize("live", [0.0, 4.0, 10.0])
+def test_live_sigmoid_is_the_sigmoid_forward_and_keeps_its_slope_beyond_live(live):
+    xs = [-1e4, -60.0, -20.0, -4.5, -1.0, 0.0, 0.3, 3.9, 20.0, 1e4]
+    x = torch.tensor(xs, dtype=torch.float64, requires_grad=True)
+    y = live_sigmoid(x, live)
+    assert torch.equal(y, torch.sigmoid(x))
+    y.sum().backward()
+    assert torch.isfinite(x.grad).all()
+    for xi, gi in zip(xs, x.grad.tolist()):
+        assert gi == pytest.approx(reference_live_sigmoid_grad(xi, live), rel=1e-12, abs=1e-300)
+    if live > 0:  # deep logits still learn: the slope at ±live, not 0
+        assert float(x.grad[0]) == pytest.approx(float(x.grad[-1])) and float(x.grad[0]) > 0
+
+
+def test_colour_live_logit_reaches_the_colour_and_is_checked():
+    net = FieldNetwork(FieldConfig(colour_live_logit=4.0), 3, AABB)
+    with torch.no_grad():  # a colour layer driven deep: every logit about -25
+        net.rgb_head[2].weight.zero_()
+        net.rgb_head[2].bias.fill_(-25.0)
+    points, dirs = torch.rand(64, 3) * 2 - 1, torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
+    rgb = net(points, dirs)[1]
+    rgb.sum().backward()
+    plain = torch.sigmoid(torch.tensor(-25.0))
+    assert torch.allclose(rgb, plain.expand_as(rgb))  # the forward is the sigmoid's
+    assert float(net.rgb_head[2].bias.grad.min()) > 64 * 0.9 * float(torch.sigmoid(torch.tensor(4.0)) * torch.sigmoid(torch.tensor(-4.0)))
+    for bad in (-1.0, float("nan"), float("inf"), True):
+        with pytest.raises(ConfigError, match="colour_live_logit"):
+            FieldConfig(colour_live_logit=bad)

@@ -139,7 +139,9 @@ def resolve_depth_background(config: BuildConfig, cameras: Cameras, from_layout:
     and higher worst-room mIoU and surface labels with the random colour). A random colour never
     matches. A sensor's depth from cameras all around keeps the white background: with the random colour
     eleven suite rooms of twelve were better, but the two biggest stalled at step 200 on a slow machine
-    (docs/suite_phone_depth_rooms.md, docs/suite_phone_depth_early.md)."""
+    (docs/suite_phone_depth_rooms.md, docs/suite_phone_depth_early.md), with training seed 0 only
+    (docs/suite_phone_depth_seeds.md): its colour channels died in the first steps, which
+    ``field.colour_live_logit`` prevents (docs/suite_colour_live.md, docs/models.md)."""
     tc = config.train
     if tc.depth_background != AUTO:
         return config
