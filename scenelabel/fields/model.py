@@ -67,9 +67,9 @@ def live_sigmoid(x: torch.Tensor, live: float) -> torch.Tensor:
     rate whatever the gradient's size, and a channel's logits can dive to -20 in the first
     hundred steps, where the sigmoid's slope (2e-9) no longer lets the channel learn. The field
     then matches the missing channel with the background seen through half-transparent walls.
-    Below ``live`` the slope stays that at ``live`` (0.018 at 4), so the photometric loss pulls
-    the channel back once surfaces form; the forward value, and every fit inside [-live, live],
-    are the sigmoid's.
+    Beyond ±``live`` the slope stays that at ``live`` (0.018 at 4), so the photometric loss pulls
+    the channel back once surfaces form; the forward value, and the gradient inside [-live, live],
+    are the sigmoid's (docs/models.md, docs/suite_colour_live.md).
     """
     if live <= 0:
         return torch.sigmoid(x)
