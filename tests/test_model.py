@@ -226,7 +226,8 @@ def test_voxels_preset_is_a_direct_dense_grid():
 def reference_live_sigmoid_grad(x: float, live: float) -> float:
     """d sigmoid / dx at x clamped to [-live, live] (live 0: unclamped), in float64."""
     z = x if live <= 0 else min(max(x, -live), live)
-    s = 1.0 / (1.0 + np.exp(-np.float64(z)))
+    e = np.exp(-abs(np.float64(z)))  # the logistic function in the form that cannot overflow (z = -1e4)
+    s = 1.0 / (1.0 + e) if z >= 0 else e / (1.0 + e)
     return float(s * (1.0 - s))
 
 
