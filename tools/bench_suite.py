@@ -156,19 +156,14 @@ DEPTH_NOTES: dict[str, str] = {
 # the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
 # the spread one run per room hides
 SEEDS = (1, 2)
+SEEDED = ("-", "margin-0.05", "depth-bg-scene", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
 for _seed in SEEDS:
-    VARIANTS[f"seed-{_seed}"] = {"train": {"seed": _seed}}
-    VARIANTS[f"margin-0.05-seed-{_seed}"] = {"train": {"free_margin": 0.05, "seed": _seed}}
-    VARIANTS[f"depth-bg-scene-seed-{_seed}"] = {"train": {"depth_background": "scene", "seed": _seed}}
-    VARIANTS[f"phone-depth-seed-{_seed}"] = {"capture": "phone-depth", "train": {"seed": _seed}}
-    DEPTH_NOTES[f"phone-depth-seed-{_seed}"] = f"the default preset with training seed {_seed} (`train.seed`; default 0)"
-    VARIANTS[f"phone-depth-bg-random-seed-{_seed}"] = {"capture": "phone-depth",
-                                                       "train": {"depth_background": "random", "seed": _seed}}
-    DEPTH_NOTES[f"phone-depth-bg-random-seed-{_seed}"] = f"as `phone-depth-bg-random` with training seed {_seed}"
-    VARIANTS[f"phone-depth-bg-random-live-4-seed-{_seed}"] = {
-        "capture": "phone-depth", "field": {"colour_live_logit": 4.0}, "train": {"depth_background": "random", "seed": _seed}}
-    DEPTH_NOTES[f"phone-depth-bg-random-live-4-seed-{_seed}"] = f"as `phone-depth-bg-random-live-4` with training seed {_seed}"
-
+    for _base in SEEDED:  # the base variant's settings with train.seed added
+        _name = f"seed-{_seed}" if _base == "-" else f"{_base}-seed-{_seed}"
+        VARIANTS[_name] = {**VARIANTS[_base], "train": {**VARIANTS[_base].get("train", {}), "seed": _seed}}
+        if _base in DEPTH_NOTES:
+            DEPTH_NOTES[_name] = (f"the default preset with training seed {_seed} (`train.seed`; default 0)" if _base == "phone-depth"
+                                  else f"as `{_base}` with training seed {_seed}")
 
 def seed_family(variant: str) -> tuple[str, int]:
     """The variant a seed variant repeats and its seed (`phone-depth-seed-1` -> (`phone-depth`, 1),
