@@ -104,7 +104,8 @@ class FieldConfig:
     pe_view_frequencies: int = 4
     density_bias: float = -1.0  # σ = exp(raw + density_bias) (trunc_exp): low initial density
     # the colour sigmoid's gradient is at least its slope at this |logit| (fields.model.live_sigmoid; 0: the
-    # plain sigmoid's): a channel driven deep while the field is still transparent can learn again
+    # plain sigmoid's): a channel driven deep while the field is still transparent can learn again.
+    # The default preset sets 4 (docs/suite_phone_depth_live.md); the others were not measured with it
     colour_live_logit: float = 0.0
     class_head: str = "linear"  # linear: scalar σ + class head (eq. 6) | density: per-class σ_j (eq. 5)
     density_combine: str = "sum"  # with class_head=density: σ = sum_j σ_j or max_j σ_j (eq. 4)
@@ -400,11 +401,10 @@ class TrainConfig:
     free_margin: float | str = "auto"
     # the colour behind a training ray that carries depth: "random" (a new random colour per ray and
     # step: the ray must be opaque by its measured surface, since a room has no backdrop behind it, and a
-    # wall left half transparent in front of the white background no longer matches its pixels) |
-    # "scene" (train.background, as every other ray) | "auto": "random" where all the depth is the room
-    # layout's or the training cameras all look one way (geometry.frame.looking_one_way), "scene"
-    # otherwise (a sensor's depth seen from all around); the build saves its choice
-    depth_background: str = AUTO
+    # wall left half transparent in front of the white background no longer matches its pixels;
+    # docs/suite_phone_depth_live.md, with field.colour_live_logit) | "scene" (train.background, as every
+    # other ray)
+    depth_background: str = DEPTH_RANDOM_BACKGROUND
     # weight of the squared total variation of a dense grid (losses.total_variation), on a random
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
@@ -452,7 +452,7 @@ class TrainConfig:
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")
-        depth_backgrounds = (AUTO, DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND)
+        depth_backgrounds = (DEPTH_RANDOM_BACKGROUND, DEPTH_SCENE_BACKGROUND)
         _check_choice("train.depth_background", self.depth_background, depth_backgrounds)
         margin = self.free_margin
         if margin != AUTO and (isinstance(margin, bool) or not (isinstance(margin, (int, float)) and 0 <= margin < 1)):
@@ -508,8 +508,11 @@ build time known before it starts; its other settings are the fast preset's."""
 # 288 marching steps across the box (the suite's rooms: 2-5 cm, living-6x5's 3.6): with 192 (3-8 cm,
 # living's 5.4) chair legs and picture frames came out half transparent (docs/suite_steps192.md: variant
 # steps-192); docs/models.md says what changes with the step (the samples and the density grid's
-# threshold) and what it costs (tools/bench.py's room loses its lamp's pole)
-_FAST = {"sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
+# threshold) and what it costs (tools/bench.py's room loses its lamp's pole).
+# The colour sigmoid keeps a gradient (field.colour_live_logit 4): without it a random training seed
+# could kill colour channels in the first steps and leave half-transparent walls (docs/models.md,
+# docs/suite_phone_depth_live.md, docs/suite_colour_live_rooms.md)
+_FAST = {"field": {"colour_live_logit": 4.0}, "sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
 
 PRESETS: dict[str, dict] = {
     AUTO_PRESET: _FAST,  # as "fast" until the build resolves it (what it hands on: AUTO_CARRIES)

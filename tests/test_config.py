@@ -35,6 +35,15 @@ def test_the_default_preset_is_auto_and_trains_as_fast_until_a_build_chooses():
     assert dataclasses.replace(preset(), preset="fast") == preset("fast")
 
 
+def test_the_default_preset_keeps_the_colour_live_and_rays_with_depth_on_a_random_colour():
+    """Chosen on the scene suite (docs/suite_phone_depth_live.md): the default preset and fast get the
+    live colour sigmoid; a preset not measured with it keeps the plain sigmoid, also when the build
+    makes "auto" into it; every preset puts a random colour behind rays with depth."""
+    assert preset().field.colour_live_logit == preset("fast").field.colour_live_logit == 4.0
+    assert preset("voxels").field.colour_live_logit == with_preset(preset(), "voxels").field.colour_live_logit == 0.0
+    assert {preset(name).train.depth_background for name in PRESETS} == {"random"}
+
+
 def test_with_preset_carries_the_given_settings_and_the_presets_own():
     given = {"train": {"time_budget": 480.0, "seed": 3}, "field": {"grid_resolution": 64}}
     assert with_preset(preset(AUTO_PRESET, given), "voxels") == preset("voxels", given)
@@ -106,6 +115,7 @@ def test_unknown_keys_and_presets_are_errors():
         {"train": {"free_margin": "wide"}},
         {"train": {"depth_background": "white"}},
         {"train": {"depth_background": None}},
+        {"train": {"depth_background": "auto"}},  # no longer chosen by the cameras: "random" is the default
         {"train": {"background": [1.0, 2.0, 0.0]}},
         {"train": {"background": [1.0, 1.0]}},
         {"train": {"steps": -1}},

@@ -17,7 +17,7 @@ from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
-from scenelabel.train.choices import resolve_depth_background, resolve_preset
+from scenelabel.train.choices import resolve_preset
 from scenelabel.train.pipeline import resume_config, split_views
 
 
@@ -193,22 +193,6 @@ def test_preset_auto_is_voxels_for_forward_facing_cameras_and_fast_otherwise(sma
     for name in ("fast", "voxels", "quick"):  # a named preset is as given
         assert resolve_preset(preset(name), _forward_cameras()) == (preset(name), None)
         assert resolve_preset(preset(name), _forward_cameras(), room=True) == (preset(name), None)
-
-
-def test_depth_background_auto_is_random_where_the_depth_is_the_layouts_or_the_cameras_look_one_way(small_toy):
-    def chosen(config, cameras, from_layout):
-        return resolve_depth_background(config, cameras, from_layout).train.depth_background
-
-    orbit = load_scene(small_toy).cameras
-    assert preset().train.depth_background == AUTO
-    assert chosen(preset(), _forward_cameras(), from_layout=False) == "random"
-    assert chosen(preset(), _forward_cameras(), from_layout=True) == "random"
-    assert chosen(preset(), orbit, from_layout=True) == "random"  # a room's walls: no backdrop behind them
-    assert chosen(preset(), orbit, from_layout=False) == "scene"  # a sensor's depth from all around: not measured
-    for given in ("random", "scene"):  # a choice given stays
-        for cameras in (_forward_cameras(), orbit):
-            for from_layout in (False, True):
-                assert chosen(preset("fast", {"train": {"depth_background": given}}), cameras, from_layout) == given
 
 
 def test_open_rays_auto_only_where_the_layout_gives_all_the_depth_and_the_cameras_look_around(small_toy):

@@ -36,6 +36,7 @@ TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F
 VARIANTS: dict[str, dict] = {
     "-": {},
     "live-4": {"field": {"colour_live_logit": 4.0}},
+    "no-live": {"field": {"colour_live_logit": 0.0}},
     "no-layout": {"data": {"layout_depth": False}},
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
@@ -88,6 +89,9 @@ VARIANTS: dict[str, dict] = {
     "phone-depth-planes-256": {"capture": "phone-depth", "field": {"resolutions": [64, 256]}},
     "phone-depth-solid-2": {"capture": "phone-depth", "train": {"solid_depth_steps": 2.0}},  # the layer before
     "phone-depth-bg-random": {"capture": "phone-depth", "train": {"depth_background": "random"}},
+    "phone-depth-bg-scene": {"capture": "phone-depth", "train": {"depth_background": "scene"}},
+    "phone-depth-bg-scene-no-live": {"capture": "phone-depth", "field": {"colour_live_logit": 0.0},  # the default before
+                                     "train": {"depth_background": "scene"}},
     "phone-depth-live-4": {"capture": "phone-depth", "field": {"colour_live_logit": 4.0}},
     "phone-depth-bg-random-live-4": {"capture": "phone-depth", "field": {"colour_live_logit": 4.0},
                                      "train": {"depth_background": "random"}},
@@ -102,8 +106,9 @@ OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the tra
              "step whatever the density grid holds, for the first half of the run, their colour error weighted back to "
              "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": 16 in a room seen from "
              "inside whose training depth is all the layout's, else 0)")
-LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4; default 0, "
-             "the plain sigmoid's): a colour channel driven deep in the first steps learns again")
+LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4, the "
+             "default preset's): a colour channel driven deep in the first steps learns again")
+NO_LIVE_NOTE = "the plain sigmoid's gradient for the colour (`field.colour_live_logit` 0; the default preset's is 4)"
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
@@ -114,6 +119,7 @@ NOTES: dict[str, str] = {
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "live-4": LIVE_NOTE,
+    "no-live": NO_LIVE_NOTE,
     "fast": "`--preset fast`: tri-planes and a small network (the default before `auto`)",
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
@@ -121,8 +127,8 @@ NOTES: dict[str, str] = {
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
-    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; \"auto\", the default, gives \"random\", a random colour behind them, where all the depth is the room layout's or the cameras all look one way)",
-    "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives it where all the depth is the room layout's or the training cameras all look one way, and \"scene\", the white background, to a sensor's depth from cameras all around)",
+    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; the default, \"random\", puts a random colour behind them)",
+    "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)",
     "depth-weight-0.5": "the depth terms at 0.5 (`train.depth_weight`; default 0.1): without sensor depth, the room layout's depth and free space pull 5 times harder",
     "no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4: a ray's samples stop being evaluated once its transmittance is below that)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
@@ -145,7 +151,9 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
     "phone-depth-live-4": LIVE_NOTE,
     "phone-depth-bg-random-live-4": "as `phone-depth-bg-random`, and " + LIVE_NOTE,
-    "phone-depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\"; \"auto\" gives a sensor's depth from cameras all around \"scene\", the white background)",
+    "phone-depth-bg-scene-no-live": "as `phone-depth-bg-scene`, and " + NO_LIVE_NOTE + " (the default before)",
+    "phone-depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)",
+    "phone-depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; the default, \"random\", puts a random colour behind them)",
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
     "phone-depth-open-16": OPEN_NOTE.format(n=16),

@@ -1,7 +1,7 @@
 """What a build chooses from the scene before it trains (config and geometry only; the pipeline
 calls them): what the preset "auto" becomes, the distortion term's weight, the free-space term's
-margin, the rays that ignore the density grid, the colour behind rays with depth, and how far a
-box of uniform cells fitted to a room's layout reaches.
+margin, the rays that ignore the density grid, and how far a box of uniform cells fitted to a
+room's layout reaches.
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ import numpy as np
 from scenelabel.config import (
     AUTO,
     AUTO_PRESET,
-    DEPTH_RANDOM_BACKGROUND,
-    DEPTH_SCENE_BACKGROUND,
     DISTORTION_AUTO_WEIGHT,
     DISTORTION_THIN_MAX,
     LAYOUT_FREE_MARGIN,
@@ -35,7 +33,6 @@ __all__ = [
     "resolve_distortion",
     "resolve_free_margin",
     "resolve_open_rays",
-    "resolve_depth_background",
     "reaching_cameras",
     "box_warp",
 ]
@@ -126,27 +123,6 @@ def resolve_open_rays(config: BuildConfig, cameras: Cameras, from_layout: bool) 
         return config
     n_open = LAYOUT_OPEN_RAYS if from_layout and not looking_one_way(cameras) else 0
     return dataclasses.replace(config, sampling=dataclasses.replace(sc, grid_open_rays=n_open))
-
-
-def resolve_depth_background(config: BuildConfig, cameras: Cameras, from_layout: bool) -> BuildConfig:
-    """``config`` with ``train.depth_background`` "auto" made "random" where all the training depth
-    comes from the room's layout (``from_layout``) or the training ``cameras`` all look one way
-    (:func:`scenelabel.geometry.frame.looking_one_way`), "scene" otherwise; a choice given stays.
-    A wall left half transparent in front of the white background can match its pixels, and
-    builds stayed that way for hundreds of steps: office-5x4-forward in some training seeds
-    (docs/suite_depth_background.md), and the rooms seen from inside on a machine that trained
-    1000-1500 steps in the budget (docs/suite_depth_background_stop.md: more steps in the same time
-    and higher worst-room mIoU and surface labels with the random colour). A random colour never
-    matches. A sensor's depth from cameras all around keeps the white background: with the random colour
-    eleven suite rooms of twelve were better, but the two biggest stalled at step 200 on a slow machine
-    (docs/suite_phone_depth_rooms.md, docs/suite_phone_depth_early.md), with training seed 0 only
-    (docs/suite_phone_depth_seeds.md): its colour channels died in the first steps, which
-    ``field.colour_live_logit`` prevents (docs/suite_colour_live.md, docs/models.md)."""
-    tc = config.train
-    if tc.depth_background != AUTO:
-        return config
-    choice = DEPTH_RANDOM_BACKGROUND if from_layout or looking_one_way(cameras) else DEPTH_SCENE_BACKGROUND
-    return dataclasses.replace(config, train=dataclasses.replace(tc, depth_background=choice))
 
 
 def reaching_cameras(aabb: np.ndarray, centres: np.ndarray) -> np.ndarray:

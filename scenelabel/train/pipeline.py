@@ -59,7 +59,6 @@ from scenelabel.render.volume import depth_at_transmittance, depth_of_max_weight
 from scenelabel.train.choices import (
     box_warp,
     reaching_cameras,
-    resolve_depth_background,
     resolve_distortion,
     resolve_free_margin,
     resolve_open_rays,
@@ -390,7 +389,6 @@ def prepare_training(
     from_layout = scene.info.get(DEPTH_SOURCE_KEY) == LAYOUT_SOURCE
     config = resolve_free_margin(config, from_layout)
     config = resolve_open_rays(config, train_cameras, from_layout)
-    config = resolve_depth_background(config, train_cameras, from_layout)
     aabb, aabb_source = aabb_from_cameras(scene.cameras, scene.aabb, points, seen_by, config.data.bounds_pad)
     if points is not None and seen_by == LAYOUT_SOURCE and box_warp(config, train_cameras):
         reached = reaching_cameras(aabb, train_cameras.centres)

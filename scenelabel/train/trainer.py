@@ -23,7 +23,6 @@ from scenelabel.codes import FREE
 from scenelabel.config import (
     AUTO,
     DEPTH_RANDOM_BACKGROUND,
-    DEPTH_SCENE_BACKGROUND,
     RANDOM_BACKGROUND,
     SENSOR_FREE_MARGIN,
     BuildConfig,
@@ -96,8 +95,7 @@ def backgrounds_for_rays(
     depth, ``background`` elsewhere (``train.depth_background`` "random"). A measured ray ends at its
     surface, and a room has no backdrop behind it: with the white background a wall left half
     transparent in front of it can match its pixels, and the field can stay that way (a forward rig's
-    walls, and a bedroom's seen from inside: :func:`scenelabel.train.choices.resolve_depth_background`);
-    a random colour never matches."""
+    walls, and rooms seen from inside: docs/models.md); a random colour never matches."""
     base = torch.zeros(3, dtype=colours.dtype, device=colours.device) if background is None else background
     return torch.where(measured[:, None], colours, base.expand_as(colours))
 
@@ -350,8 +348,6 @@ class Trainer:
         self.distortion_weight = 0.0 if tc.distortion_weight == AUTO else float(tc.distortion_weight)
         # "auto" is resolved by the build (choices.resolve_free_margin); a trainer made without it: a sensor's
         self.free_margin = SENSOR_FREE_MARGIN if tc.free_margin == AUTO else float(tc.free_margin)
-        # "auto" is resolved by the build (choices.resolve_depth_background); a trainer made without it: the scene's
-        self.depth_background = DEPTH_SCENE_BACKGROUND if tc.depth_background == AUTO else tc.depth_background
         self.config = resolve_by_depth(config, with_depth)  # grid_decay, steps, budget "auto": by the rays' depth
         self.rays_by_class = None  # sampling.grid_open_rays: the pool by label, where any ray has one
         if self.config.sampling.grid_open_rays > 0:  # "auto" resolved: by the build, else 0
@@ -490,7 +486,7 @@ class Trainer:
         if tc.background == RANDOM_BACKGROUND:  # [n_rays, 3]: transparency never matches a pixel
             background = torch.rand(n_rays, 3, generator=self.ray_generator).to(self.device)
         target_depth = None if r.depth is None or tc.depth_weight == 0 else r.depth[idx]
-        if target_depth is not None and self.depth_background == DEPTH_RANDOM_BACKGROUND:
+        if target_depth is not None and tc.depth_background == DEPTH_RANDOM_BACKGROUND:
             colours = torch.rand(n_rays, 3, generator=self.ray_generator).to(self.device)
             background = backgrounds_for_rays(background, torch.isfinite(target_depth), colours)
         free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step, self.free_margin)
