@@ -109,6 +109,8 @@ OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the tra
 LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4, the "
              "default preset's): a colour channel driven deep in the first steps learns again")
 NO_LIVE_NOTE = "the plain sigmoid's gradient for the colour (`field.colour_live_logit` 0; the default preset's is 4)"
+BG_SCENE_NOTE = "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; the default, \"random\", puts a random colour behind them)"
+BG_RANDOM_NOTE = "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)"
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
@@ -127,8 +129,8 @@ NOTES: dict[str, str] = {
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
-    "depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; the default, \"random\", puts a random colour behind them)",
-    "depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)",
+    "depth-bg-scene": BG_SCENE_NOTE,
+    "depth-bg-random": BG_RANDOM_NOTE,
     "depth-weight-0.5": "the depth terms at 0.5 (`train.depth_weight`; default 0.1): without sensor depth, the room layout's depth and free space pull 5 times harder",
     "no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4: a ray's samples stop being evaluated once its transmittance is below that)",
     "margin-0.05": "the free-space term counting weight in front of 0.95 of the layout's depth (`train.free_margin` 0.05, a sensor's; \"auto\" gives layout depth 0.02)",
@@ -152,8 +154,8 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-live-4": LIVE_NOTE,
     "phone-depth-bg-random-live-4": "as `phone-depth-bg-random`, and " + LIVE_NOTE,
     "phone-depth-bg-scene-no-live": "as `phone-depth-bg-scene`, and " + NO_LIVE_NOTE + " (the default before)",
-    "phone-depth-bg-random": "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)",
-    "phone-depth-bg-scene": "rays with depth composited on the white background like every other ray (`train.depth_background` \"scene\"; the default, \"random\", puts a random colour behind them)",
+    "phone-depth-bg-random": BG_RANDOM_NOTE,
+    "phone-depth-bg-scene": BG_SCENE_NOTE,
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
     "phone-depth-open-16": OPEN_NOTE.format(n=16),
@@ -172,6 +174,7 @@ for _seed in SEEDS:
         if _base in DEPTH_NOTES:
             DEPTH_NOTES[_name] = (f"the default preset with training seed {_seed} (`train.seed`; default 0)" if _base == "phone-depth"
                                   else f"as `{_base}` with training seed {_seed}")
+
 
 def seed_family(variant: str) -> tuple[str, int]:
     """The variant a seed variant repeats and its seed (`phone-depth-seed-1` -> (`phone-depth`, 1),
