@@ -264,7 +264,7 @@ leave (:func:`time_budget_with_depth`), and stops at STEPS steps if that comes f
 
 MIN_TIME_BUDGET = 60.0
 """Training seconds a build with depth keeps however long its setup and expected evaluation take
-(it then runs over BUILD_SECONDS_WITH_DEPTH). It was 20 s: in docs/suite.md's run, whose builds
+(it then runs over BUILD_SECONDS_WITH_DEPTH). It was 20 s: in docs/suite_3584cf9.md's run, whose builds
 with depth made 14.1-18.8 steps/s at 160x120 (29.8-37.4 in docs/suite_steps192.md's), hires-5x4
 (26 views at 640x480) spent 27 s setting up and expected 35 s of evaluation, so it trained 25.5 s,
 351 steps, and came out fog (PSNR 21.0, surface labels 22 %, mIoU 0.730); given 60 s the same day
