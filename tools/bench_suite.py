@@ -166,7 +166,7 @@ DEPTH_NOTES: dict[str, str] = {
 # the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
 # the spread one run per room hides
 SEEDS = (1, 2)
-SEEDED = ("-", "margin-0.05", "depth-bg-scene", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
+SEEDED = ("-", "margin-0.05", "depth-bg-scene", "open-64", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
 for _seed in SEEDS:
     for _base in SEEDED:  # the base variant's settings with train.seed added
         _name = f"seed-{_seed}" if _base == "-" else f"{_base}-seed-{_seed}"
@@ -174,6 +174,9 @@ for _seed in SEEDS:
         if _base in DEPTH_NOTES:
             DEPTH_NOTES[_name] = (f"the default preset with training seed {_seed} (`train.seed`; default 0)" if _base == "phone-depth"
                                   else f"as `{_base}` with training seed {_seed}")
+        elif _base in NOTES:
+            NOTES[_name] = (f"the default preset with training seed {_seed} (`train.seed`; default 0)" if _base == "-"
+                            else f"as `{_base}` with training seed {_seed}")
 
 
 def seed_family(variant: str) -> tuple[str, int]:
