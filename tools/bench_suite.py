@@ -30,6 +30,9 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from scenelabel.config import LAYOUT_OPEN_RAYS  # noqa: E402
+
 MAP_VOXEL = 0.05
 PROBE_RAYS = 20_000  # held-out pixel rays probed per room
 TRUTH_POINTS = 200_000  # true surface points (all views' exact depth) for the F-score's recall
@@ -41,7 +44,7 @@ VARIANTS: dict[str, dict] = {
     "reopen": {"sampling": {"grid_reopen": 0.01}},  # the worst-coloured 1 % of each step's rays re-open their grid cells
     "reopen-labels": {"sampling": {"grid_reopen": 0.01, "grid_reopen_by": "labels"}},  # the wrongly labelled rays re-open
     "warmup-128": {"sampling": {"grid_warmup": 128}},  # every grid cell marched for the first 128 steps
-    "no-open": {"sampling": {"grid_open_rays": 0}},  # no open rays ("auto" gives rooms seen from inside 16)
+    "no-open": {"sampling": {"grid_open_rays": 0}},  # no open rays ("auto" gives rooms seen from inside LAYOUT_OPEN_RAYS)
     "open-16": {"sampling": {"grid_open_rays": 16}},  # 16 class-balanced rays a step march every cell
     "open-32": {"sampling": {"grid_open_rays": 32}},
     "open-64": {"sampling": {"grid_open_rays": 64}},
@@ -104,7 +107,7 @@ VARIANTS: dict[str, dict] = {
 }
 OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the training labels that sample every marching "
              "step whatever the density grid holds, for the first half of the run, their colour error weighted back to "
-             "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": 16 in a room seen from "
+             "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": {auto} in a room seen from "
              "inside whose training depth is all the layout's, else 0)")
 LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4, the "
              "default preset's): a colour channel driven deep in the first steps learns again")
@@ -113,11 +116,11 @@ BG_SCENE_NOTE = "rays with depth composited on the white background like every o
 BG_RANDOM_NOTE = "rays with depth composited on a random colour (`train.depth_background` \"random\", the default)"
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
-    "-": "the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds 16 rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
+    "-": f"the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds {LAYOUT_OPEN_RAYS} rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
-    **{f"open-{n}": OPEN_NOTE.format(n=n) for n in (16, 32, 64)},
-    "no-open": "no rays that ignore the density grid (`sampling.grid_open_rays` 0; \"auto\", the default, adds 16 a step to rooms seen from inside whose depth is all the layout's)",
+    **{f"open-{n}": OPEN_NOTE.format(n=n, auto=LAYOUT_OPEN_RAYS) for n in (16, 32, 64)},
+    "no-open": f"no rays that ignore the density grid (`sampling.grid_open_rays` 0; \"auto\", the default, adds {LAYOUT_OPEN_RAYS} a step to rooms seen from inside whose depth is all the layout's)",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
     "live-4": LIVE_NOTE,
@@ -158,7 +161,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-bg-scene": BG_SCENE_NOTE,
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
-    "phone-depth-open-16": OPEN_NOTE.format(n=16),
+    "phone-depth-open-16": OPEN_NOTE.format(n=16, auto=LAYOUT_OPEN_RAYS),
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
