@@ -107,8 +107,8 @@ VARIANTS: dict[str, dict] = {
 }
 OPEN_NOTE = ("each training step adds {n} rays drawn class by class from the training labels that sample every marching "
              "step whatever the density grid holds, for the first half of the run, their colour error weighted back to "
-             "their class's share of the pixels (`sampling.grid_open_rays` {n}; default \"auto\": {auto} in a room seen from "
-             "inside whose training depth is all the layout's, else 0)")
+             f"their class's share of the pixels (`sampling.grid_open_rays` {{n}}; default \"auto\": {LAYOUT_OPEN_RAYS} in a "
+             "room seen from inside whose training depth is all the layout's, else 0)")
 LIVE_NOTE = ("the colour sigmoid's gradient no less than its slope at a logit of ±4 (`field.colour_live_logit` 4, the "
              "default preset's): a colour channel driven deep in the first steps learns again")
 NO_LIVE_NOTE = "the plain sigmoid's gradient for the colour (`field.colour_live_logit` 0; the default preset's is 4)"
@@ -119,7 +119,7 @@ NOTES: dict[str, str] = {
     "-": f"the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds {LAYOUT_OPEN_RAYS} rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
-    **{f"open-{n}": OPEN_NOTE.format(n=n, auto=LAYOUT_OPEN_RAYS) for n in (16, 32, 64)},
+    **{f"open-{n}": OPEN_NOTE.format(n=n) for n in (16, 32, 64)},
     "no-open": f"no rays that ignore the density grid (`sampling.grid_open_rays` 0; \"auto\", the default, adds {LAYOUT_OPEN_RAYS} a step to rooms seen from inside whose depth is all the layout's)",
     "warmup-128": "every density-grid cell occupied for the first 128 training steps, before the grid's first refresh (`sampling.grid_warmup` 128)",
     "reopen": "each training step's 1 % of rays with the largest colour error re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_until` 0.5; default 0: off)",
@@ -161,7 +161,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-bg-scene": BG_SCENE_NOTE,
     "phone-depth-no-carve": "no space carving (`sampling.depth_carve` false), rays to the box (`sampling.depth_ray_end` 0)",
     "phone-depth-no-fill": "the sensor's holes are not filled from the room's layout (`data.layout_depth` false)",
-    "phone-depth-open-16": OPEN_NOTE.format(n=16, auto=LAYOUT_OPEN_RAYS),
+    "phone-depth-open-16": OPEN_NOTE.format(n=16),
     "phone-depth-carve": "space carving from the depth (`sampling.depth_carve` true, the default), its border handed back to the field at half the run (`sampling.depth_carve_until` 0.5), rays with depth ending 2 grid cells past it (`sampling.depth_ray_end` 2)",
     "phone-depth-no-train-stop": "training evaluates every sample in an occupied cell (`sampling.train_min_trans` 0; default 1e-4)",
     "phone-depth-keep-carve": "as `phone-depth-carve` with the carve kept whole to the end (`sampling.depth_carve_until` 1)",
