@@ -346,8 +346,9 @@ also keeps library-7x4's lamp shade, which the density grid empties before it fo
 the nine tuning rooms the worst one's mIoU 0.901 against 0.884 and the median F-score 0.976
 against 0.957, for a median mIoU of 0.956 against 0.963 (docs/suite_open_64_all.md, one run;
 docs/models.md). It thins hires-5x4's lamp: 0.901 against 0.973 in a second run
-(docs/suite_open_64_hires.md), so the count is still open. A sensor's depth and forward-facing rigs were not measured with it, so there
-"auto" is 0."""
+(docs/suite_open_64_hires.md), and 32 thins it too while behind 64 on the tuning rooms' median and
+worst mIoU (docs/suite_open_32_all.md), so a count keeping both lamps is still open. A sensor's depth
+and forward-facing rigs were not measured with it, so there "auto" is 0."""
 
 RANDOM_BACKGROUND = "random"
 """``train.background``: a random colour per training ray and step (renders and queries use white)."""
