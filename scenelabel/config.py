@@ -169,11 +169,17 @@ class SamplingConfig:
     # class's pixels as often as a common one's), that sample every marching step whatever the grid
     # holds, until grid_open_until of the run: a thin object whose cells the grid emptied before the
     # field had learnt it gets a gradient, and its cells re-open once the field holds density there (0: off).
-    # Their colour error counts at their class's share of the pixels (the labels' stays balanced).
+    # Their colour error counts at their class's share of the pixels (their labels: grid_open_labels).
     # "auto": LAYOUT_OPEN_RAYS where all the training depth comes from the room's layout and the
     # cameras do not all look one way, else 0 (docs/suite_open_64_all.md; docs/models.md)
     grid_open_rays: int | str = "auto"
     grid_open_until: float = 0.5
+    # what the open rays' labels train: "balanced", their cross-entropy unweighted (each class's labels
+    # as often as another's); "share", weighted like their colour error, at their class's share of the
+    # pixels; "geometry", unweighted but moving density only (their samples' class logits detached).
+    # "share" and "geometry" kept hires-5x4's lamp shade, which "balanced" thins to labelled fog, but
+    # lost library-7x4's and hall-10x6's lamps (probes; docs/models.md)
+    grid_open_labels: str = "balanced"
     # with sensor depth (and train.depth_weight > 0): grid cells that depth rays cross well in front of
     # their measured surface start empty (space carving, render.sampling.free_cells_from_depth), so
     # the first steps march as few samples as the last; box warp only (docs/depth_carve_suite.md)
@@ -203,6 +209,7 @@ class SamplingConfig:
         _check_choice("sampling.warp", self.warp, ("auto", "box", "forward"))
         _check_choice("sampling.strategy", self.strategy, ("grid", "hierarchical"))
         _check_choice("sampling.grid_reopen_by", self.grid_reopen_by, ("colour", "labels"))
+        _check_choice("sampling.grid_open_labels", self.grid_open_labels, ("balanced", "share", "geometry"))
         for name in ("n_coarse", "n_fine"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

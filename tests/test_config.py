@@ -104,6 +104,7 @@ def test_unknown_keys_and_presets_are_errors():
         {"sampling": {"grid_open_rays": True}},
         {"sampling": {"grid_open_rays": "many"}},
         {"sampling": {"grid_open_until": 2.0}},
+        {"sampling": {"grid_open_labels": "uniform"}},
         {"sampling": {"train_min_trans": float("nan")}},
         {"sampling": {"train_min_trans": True}},
         {"train": {"background": "blue"}},

@@ -74,6 +74,35 @@ def test_focal_with_gamma_zero_equals_cross_entropy():
         torch.testing.assert_close(semantic_focal_loss(log_p, targets, 0.0, w), semantic_cross_entropy(log_p, targets, w))
 
 
+def test_ray_weighted_losses_match_a_float64_loop():
+    """``ray_weights`` (and ``class_weights`` with them): Σ w loss / Σ w over the labelled rays,
+    w = w_class x w_ray, against a naive loop; weights 1 give the plain mean."""
+    torch.manual_seed(1)
+    log_p = torch.log_softmax(torch.randn(40, 5, dtype=torch.float64), -1)
+    targets = torch.randint(-1, 5, (40,))
+    ray_w, class_w = torch.rand(40, dtype=torch.float64) * 3, torch.rand(5, dtype=torch.float64)
+    for gamma in (0.0, 2.0):
+        for cw in (None, class_w):
+            num = den = 0.0
+            for i in range(40):
+                t = int(targets[i])
+                if t < 0:
+                    continue
+                p = math.exp(float(log_p[i, t]))
+                w = float(ray_w[i]) * (1.0 if cw is None else float(cw[t]))
+                num += w * -((1.0 - p) ** gamma) * math.log(p)
+                den += w
+            got = semantic_focal_loss(log_p, targets, gamma, cw, ray_w)
+            assert float(got) == pytest.approx(num / den, rel=1e-12)
+            if gamma == 0.0:
+                assert float(semantic_cross_entropy(log_p, targets, cw, ray_w)) == pytest.approx(num / den, rel=1e-12)
+    ones = torch.ones(40, dtype=torch.float64)
+    torch.testing.assert_close(semantic_cross_entropy(log_p, targets, None, ones), semantic_cross_entropy(log_p, targets))
+    # all weight on unlabelled rays: finite, 0
+    unlabelled_only = (targets < 0).double()
+    assert float(semantic_cross_entropy(log_p, targets, None, unlabelled_only)) == 0.0
+
+
 def test_focal_hand_value_and_down_weighting():
     # P_t = 0.9 and 0.2, γ = 2: mean of -(0.1)^2 log 0.9 and -(0.8)^2 log 0.2
     log_p = torch.log(torch.tensor([[0.9, 0.1], [0.8, 0.2]], dtype=torch.float64))

@@ -157,6 +157,39 @@ def test_open_rays_sample_every_step_and_the_others_only_occupied_ones():
     assert mixed.n_evaluated == every.n_evaluated - _skipped(o, d, t_min, t_max, ~opened) > grid.n_evaluated
 
 
+class ScaledSlabField(SlabField):
+    """SlabField with σ and the class logits each scaled by a parameter (for gradients)."""
+
+    def __init__(self):
+        super().__init__(sigma=4.0)
+        self.sigma_scale = torch.tensor(1.0, requires_grad=True)
+        self.logit_scale = torch.tensor(1.0, requires_grad=True)
+
+    def features(self, points):
+        sigmas, h, raw = super().features(points)
+        return sigmas * self.sigma_scale, h, raw
+
+    def heads(self, h, raw, directions):
+        rgbs, logits = super().heads(h, raw, directions)
+        return rgbs, logits * self.logit_scale
+
+
+def test_geometry_only_labels_move_density_and_not_the_classes():
+    """``CompositeOptions.geometry_only_labels``: the flagged rays' class composite is unchanged, and a
+    loss on it reaches σ but not the class logits; the other rays' reaches both."""
+    o, d, t_min, t_max = rays()
+    marching, target = Marching(0.05, 64), torch.zeros(len(o), dtype=torch.long)
+    for flagged in (torch.ones(len(o), dtype=torch.bool), torch.zeros(len(o), dtype=torch.bool)):
+        field = ScaledSlabField()
+        out = render_rays(field, every_cell, o, d, t_min, t_max, marching, options=CompositeOptions(geometry_only_labels=flagged))
+        plain = render_rays(SlabField(sigma=4.0), every_cell, o, d, t_min, t_max, marching)
+        torch.testing.assert_close(out.class_log_probs, plain.class_log_probs)
+        torch.nn.functional.nll_loss(out.class_log_probs, target).backward()
+        assert field.sigma_scale.grad is not None and float(field.sigma_scale.grad.abs()) > 0
+        moved = field.logit_scale.grad is not None and float(field.logit_scale.grad.abs()) > 0
+        assert moved == (not bool(flagged.all()))
+
+
 def _skipped(o, d, t_min, t_max, which):
     """Samples of the rays ``which`` whose middle lies in not_left_half's empty half."""
     n = 0

@@ -676,33 +676,42 @@ def test_reopen_by_labels_opens_along_the_wrongly_labelled_rays_alone(scene):
     assert not trainer.grid.bits.any()
 
 
-@pytest.mark.parametrize("n_open", [0, 16])
-def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open, monkeypatch):
+@pytest.mark.parametrize(("n_open", "label_weights"), [(0, "share"), (16, "share"), (16, "balanced"), (16, "geometry")])
+def test_open_rays_march_a_grid_the_refreshes_emptied(scene, n_open, label_weights, monkeypatch):
     """``sampling.grid_open_rays``: through a grid emptied before the step, the step's class-balanced
     extra rays still sample (and so give the field a gradient there); without them nothing is
     sampled; past ``sampling.grid_open_until`` of the run they are no longer added. Their colour
-    error counts at their class's pixel share (K x share), the regular rays' at 1."""
+    error counts at their class's pixel share (K x share), the regular rays' at 1; their
+    cross-entropy too with ``sampling.grid_open_labels`` "share", unweighted with "balanced" and
+    "geometry", which composites their classes with detached class logits (density only)."""
     import scenelabel.train.trainer as train
 
     config = preset("quick", {
-        "sampling": {"n_steps": 32, "grid_resolution": 16, "grid_open_rays": n_open, "grid_open_until": 0.5},
+        "sampling": {"n_steps": 32, "grid_resolution": 16, "grid_open_rays": n_open, "grid_open_until": 0.5,
+                     "grid_open_labels": label_weights},
         "train": {"steps": 10, "batch_rays": 64},
         "output": {"write_map": False},
     })
     trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
     trainer.grid.update(lambda p: torch.zeros(len(p)), decay=0.0)
-    weights_seen = []
-    real_mse = train.photometric_mse
+    weights_seen, label_weights_seen = [], []
+    real_mse, real_ce = train.photometric_mse, train.semantic_cross_entropy
     monkeypatch.setattr(train, "photometric_mse", lambda rgb, target, weights=None: weights_seen.append(weights) or real_mse(rgb, target, weights))
+    monkeypatch.setattr(train, "semantic_cross_entropy", lambda lp, ch, cw=None, rw=None: label_weights_seen.append(rw) or real_ce(lp, ch, cw, rw))
+    geometry_only_seen, real_render = [], train.render_rays
+    monkeypatch.setattr(train, "render_rays", lambda *a: geometry_only_seen.append(a[8].geometry_only_labels) or real_render(*a))
     logged = trainer.train_step()  # step 0: before the grid's warm-up, no refresh
     if n_open == 0:
-        assert weights_seen == [None]
+        assert weights_seen == [None] and label_weights_seen == [None]
     else:
         counts = trainer.rays_by_class[1][:, 1].double()
         shares = (len(counts) * counts / counts.sum()).float()
         weights = weights_seen[0]
         assert weights.shape == (80,) and (weights[:64] == 1).all()
         assert all(bool(torch.isclose(w, shares).any()) for w in weights[64:])
+        assert torch.equal(label_weights_seen[0], weights) if label_weights == "share" else label_weights_seen == [None]
+        opened = torch.arange(80) >= 64
+        assert torch.equal(geometry_only_seen[0], opened) if label_weights == "geometry" else geometry_only_seen == [None]
     assert trainer.grid.occupied_fraction == 0.0
     if n_open == 0:
         assert logged["samples_per_ray"] == 0.0

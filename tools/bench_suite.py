@@ -48,6 +48,8 @@ VARIANTS: dict[str, dict] = {
     "open-16": {"sampling": {"grid_open_rays": 16}},  # 16 class-balanced rays a step march every cell
     "open-32": {"sampling": {"grid_open_rays": 32}},
     "open-64": {"sampling": {"grid_open_rays": 64}},
+    "open-share-labels": {"sampling": {"grid_open_labels": "share"}},  # their cross-entropy weighted like their colour
+    "open-geometry-labels": {"sampling": {"grid_open_labels": "geometry"}},  # their labels move density only
     "distortion": {"train": {"distortion_weight": 0.002}},
     "no-distortion": {"train": {"distortion_weight": 0.0}},
     "solid": {"train": {"solid_weight": 0.01}},
@@ -117,6 +119,8 @@ BG_RANDOM_NOTE = "rays with depth composited on a random colour (`train.depth_ba
 # what a variant without depth changes, for the document's text (only the variants a run has)
 NOTES: dict[str, str] = {
     "-": f"the default preset: without sensor depth the floor, wall and ceiling pixels of the training views train on the depth of the room's layout found from their masks (`data.layout_depth`), and such a room seen from inside adds {LAYOUT_OPEN_RAYS} rays a step, drawn class by class, that ignore the density grid for the first half of the run (`sampling.grid_open_rays` \"auto\")",
+    "open-share-labels": "as the default, with the open rays' cross-entropy weighted like their colour error, at their class's share of the pixels (`sampling.grid_open_labels` \"share\"; default \"balanced\": unweighted, each class's labels as often as another's)",
+    "open-geometry-labels": "as the default, with the open rays' cross-entropy moving density only, their samples' class logits detached (`sampling.grid_open_labels` \"geometry\"; default \"balanced\": it moves both)",
     "no-layout": "the default preset without the layout's depth (`data.layout_depth` false): colour and labels alone",
     "reopen-labels": "each training step's rays whose rendered class is wrong, up to 1 % of the step's rays (those of largest cross-entropy), re-open the density grid's cells from their start to their rendered depth, for the first half of the run (`sampling.grid_reopen` 0.01, `sampling.grid_reopen_by` \"labels\")",
     **{f"open-{n}": OPEN_NOTE.format(n=n) for n in (16, 32, 64)},

@@ -78,6 +78,10 @@ class CompositeOptions:
     # [n_rays] distances before which each ray should be empty (a depth sensor saw free space
     # there; NaN: no such knowledge): the render reports the weight in front of them (``front_weight``)
     free_until: torch.Tensor | None = None
+    # [n_rays] bool: rays whose class composite moves σ but not the classes (their samples' class
+    # logits detached): a loss on their labels can only move density to where the field already
+    # holds the class (training's open rays, ``sampling.grid_open_labels`` "geometry")
+    geometry_only_labels: torch.Tensor | None = None
 
 
 NO_OPTIONS = CompositeOptions()
@@ -470,6 +474,8 @@ def _composite(field, at, intervals, samples, limits, options: CompositeOptions,
     packed_sigmas = _padded(sigmas, packed, (n_rays, K), dtype)
     weights, _, _ = weights_from_density(packed_sigmas, ends - starts)
     semantic_weights = weights.detach() if options.detach_semantic_weights else weights
+    if options.geometry_only_labels is not None:
+        class_logits = torch.where(options.geometry_only_labels.index_select(0, rows)[:, None], class_logits.detach(), class_logits)
     if field.config.semantic_rendering == "scores":
         logits = _padded(class_logits, packed, (n_rays, K), dtype)
         class_log_probs = class_log_probs_from_scores(semantic_weights, logits)

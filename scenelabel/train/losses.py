@@ -191,18 +191,43 @@ def class_balance_weights(channels: torch.Tensor, num_classes: int) -> torch.Ten
     return weights.float()
 
 
+def _labelled_mean(
+    per_ray: torch.Tensor,
+    targets: torch.Tensor,
+    labelled: torch.Tensor,
+    class_weights: torch.Tensor | None,
+    ray_weights: torch.Tensor | None,
+) -> torch.Tensor:
+    """Σ w loss / Σ w over the labelled rays, w = class_weights[target] x ray_weights (1 where None);
+    the plain mean without either. per_ray, targets: [n_labelled]; labelled: [n_rays] bool. The
+    1e-12 floor on Σ w only keeps an all-zero weighting finite (the loss is then 0)."""
+    if class_weights is None and ray_weights is None:
+        return per_ray.mean()
+    w = torch.ones_like(per_ray) if class_weights is None else class_weights[targets]
+    if ray_weights is not None:
+        w = w * ray_weights[labelled]
+    return (w * per_ray).sum() / w.sum().clamp(min=1e-12)
+
+
 def semantic_cross_entropy(
-    class_log_probs: torch.Tensor, target_channels: torch.Tensor, class_weights: torch.Tensor | None = None
+    class_log_probs: torch.Tensor,
+    target_channels: torch.Tensor,
+    class_weights: torch.Tensor | None = None,
+    ray_weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Cross-entropy -log P_target of the composited class distribution (seed paper eq. 7 + CE).
 
     Pixels with target -1 (ignore_index, unlabelled views, classes without a channel) are excluded;
     with no labelled pixel in the batch the loss is 0 (and still differentiable). With
-    ``class_weights`` [C], the loss is the weighted mean Σ w_t (-log P_t) / Σ w_t.
+    ``class_weights`` [C] and / or ``ray_weights`` [n_rays] (e.g. the importance weights of rays drawn
+    class by class, :func:`scenelabel.render.sampling.class_balanced_rays`), the loss is the
+    weighted mean Σ w (-log P_t) / Σ w, w = w_t x the ray's weight.
 
     Args:
         class_log_probs: [n_rays, C] log-probabilities.
         target_channels: [n_rays] int64 channel index or -1.
+        class_weights: [C] or None.
+        ray_weights: [n_rays] or None.
     Returns:
         scalar mean over labelled rays.
     """
@@ -211,10 +236,7 @@ def semantic_cross_entropy(
         return class_log_probs.sum() * 0.0
     targets = target_channels[labelled]
     nll = -class_log_probs[labelled].gather(1, targets[:, None]).squeeze(1)
-    if class_weights is None:
-        return nll.mean()
-    w = class_weights[targets]
-    return (w * nll).sum() / w.sum().clamp(min=1e-12)
+    return _labelled_mean(nll, targets, labelled, class_weights, ray_weights)
 
 
 def semantic_focal_loss(
@@ -222,19 +244,21 @@ def semantic_focal_loss(
     target_channels: torch.Tensor,
     gamma: float = 2.0,
     class_weights: torch.Tensor | None = None,
+    ray_weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Focal loss -α_t (1 - P_t)^γ log P_t (Lin et al. 2017) on the composited class distribution.
 
     Down-weights pixels the field already labels confidently, so rare and hard pixels (thin
     structures, boundaries) count more. γ = 0 gives exactly :func:`semantic_cross_entropy`;
-    ``class_weights`` [C] play the per-class α_t (normalised as there: Σ α_t loss_t / Σ α_t).
-    Masking of unlabelled pixels (-1) is as in :func:`semantic_cross_entropy`.
+    ``class_weights`` [C] play the per-class α_t and ``ray_weights`` [n_rays] weigh rays, both as
+    there (normalised: Σ w loss / Σ w). Masking of unlabelled pixels (-1) is as in :func:`semantic_cross_entropy`.
 
     Args:
         class_log_probs: [n_rays, C] log-probabilities.
         target_channels: [n_rays] int64 channel index or -1.
         gamma: focusing parameter γ >= 0.
         class_weights: [C] or None.
+        ray_weights: [n_rays] or None.
     Returns:
         scalar mean over labelled rays.
     """
@@ -247,7 +271,4 @@ def semantic_focal_loss(
     log_p = class_log_probs[labelled].gather(1, targets[:, None]).squeeze(1)
     # (1 - P)^γ with 1 - P = -expm1(log P): exact for P near 1, where the focal factor matters most
     loss = -(-torch.expm1(log_p)).clamp(min=0.0).pow(gamma) * log_p
-    if class_weights is None:
-        return loss.mean()
-    w = class_weights[targets]
-    return (w * loss).sum() / w.sum().clamp(min=1e-12)
+    return _labelled_mean(loss, targets, labelled, class_weights, ray_weights)

@@ -383,11 +383,13 @@ class Trainer:
             f"{self.guard.mean_colour_mse:.4g}): resumed from step {step} at {factor:g} times the learning rate"
         )
 
-    def _semantic_loss(self, class_log_probs: torch.Tensor, channels: torch.Tensor) -> torch.Tensor:
+    def _semantic_loss(
+        self, class_log_probs: torch.Tensor, channels: torch.Tensor, ray_weights: torch.Tensor | None = None
+    ) -> torch.Tensor:
         tc = self.config.train
         if tc.semantic_loss == "focal":
-            return semantic_focal_loss(class_log_probs, channels, tc.focal_gamma, self.class_weights)
-        return semantic_cross_entropy(class_log_probs, channels, self.class_weights)
+            return semantic_focal_loss(class_log_probs, channels, tc.focal_gamma, self.class_weights, ray_weights)
+        return semantic_cross_entropy(class_log_probs, channels, self.class_weights, ray_weights)
 
     def _add_grid_tv(self) -> float:
         """Adds train.tv_weight x the total variation of a random TV_SLAB-row slab of the field's
@@ -463,13 +465,15 @@ class Trainer:
         self._set_lr()
         pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
         idx = self.ray_pool[pick.to(self.device)]
-        open_rays = colour_weights = None
+        open_rays = colour_weights = label_weights = None
         if self.rays_by_class is not None and self.coarse is None and self.progress() < sc.grid_open_until:
             extra, share_weights = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
             open_rays = torch.arange(len(idx) + len(extra), device=self.device) >= len(idx)
-            # their colour counts at the pixels' shares (their labels stay balanced): drawn class by
-            # class, they would otherwise pull the colour towards the furniture's (docs/models.md)
+            # their colour counts at the pixels' shares: drawn class by class, they would otherwise pull
+            # the colour towards the furniture's; their labels too, unless "balanced" (docs/models.md)
             colour_weights = torch.cat([torch.ones(len(idx), device=self.device), share_weights])
+            if sc.grid_open_labels == "share":
+                label_weights = colour_weights
             idx = torch.cat([idx, extra])
         n_rays = len(idx)
         jitter = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
@@ -493,7 +497,8 @@ class Trainer:
         t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
         out, coarse_out, solid_sigmas = self.render(
             r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
-            CompositeOptions(background, True, tc.detach_semantic_weights, free_until), solid_offsets=solid_offsets,
+            CompositeOptions(background, True, tc.detach_semantic_weights, free_until,
+                             open_rays if sc.grid_open_labels == "geometry" else None), solid_offsets=solid_offsets,
             open_rays=open_rays,
         )
         if sc.grid_from_training and out.sample_points is not None:  # each rank its own; the refresh keeps rank 0's
@@ -502,7 +507,7 @@ class Trainer:
         if sc.grid_reopen > 0 and self.coarse is None and self.progress() < sc.grid_reopen_until:
             self._reopen_worst(out, target_rgb, idx, t_stop)
         mse = photometric_mse(out.rgb, target_rgb, colour_weights)
-        ce = self._semantic_loss(out.class_log_probs, r.channels[idx])
+        ce = self._semantic_loss(out.class_log_probs, r.channels[idx], label_weights)
         distortion = out.distortion.mean()
         distortion_weight = self.distortion_weight if self.progress() >= tc.distortion_start else 0.0
         loss = mse + tc.semantic_weight * ce + distortion_weight * distortion
