@@ -470,10 +470,9 @@ class Trainer:
             extra, share_weights = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
             open_rays = torch.arange(len(idx) + len(extra), device=self.device) >= len(idx)
             # their colour counts at the pixels' shares: drawn class by class, they would otherwise pull
-            # the colour towards the furniture's; their labels too, unless "balanced" (docs/models.md)
+            # the colour towards the furniture's; their labels too with sampling.grid_open_labels "share"
             colour_weights = torch.cat([torch.ones(len(idx), device=self.device), share_weights])
-            if sc.grid_open_labels == "share":
-                label_weights = colour_weights
+            label_weights = colour_weights if sc.grid_open_labels == "share" else None
             idx = torch.cat([idx, extra])
         n_rays = len(idx)
         jitter = torch.rand(n_rays, generator=self.ray_generator).to(self.device)
