@@ -437,44 +437,53 @@ def test_merge_intervals_splits_the_same_span():
         assert set(t_new[r].tolist()) <= edges and set(t_ends[r].tolist()) <= edges
 
 
-def naive_rebuild(density, warp, r, s, threshold, dilate):
-    """Float64 loops: each cell's largest density at its s³ sub-cell centres, then a (2 dilate + 1)³ max."""
+def naive_rebuild(density, warp, r, s, threshold, border, border_s):
+    """Float64 loops: each cell's largest density at its s³ sub-cell centres; then each cell within
+    ``border`` cells (along every axis) of an occupied one, not occupied itself, at border_s³."""
+
+    def lattice_max(i, j, k, n):
+        best = 0.0
+        for a in range(n):
+            for b in range(n):
+                for c in range(n):
+                    unit = (np.array([i + (a + 0.5) / n, j + (b + 0.5) / n, k + (c + 0.5) / n]) / r) * 2 - 1
+                    point = warp.inverse(torch.tensor(unit[None], dtype=torch.float32))
+                    best = max(best, float(density(point)[0]))
+        return best
+
+    cells = [(i, j, k) for i in range(r) for j in range(r) for k in range(r)]
     dense = np.zeros((r, r, r), dtype=bool)
-    for i in range(r):
-        for j in range(r):
-            for k in range(r):
-                best = 0.0
-                for a in range(s):
-                    for b in range(s):
-                        for c in range(s):
-                            unit = (np.array([i + (a + 0.5) / s, j + (b + 0.5) / s, k + (c + 0.5) / s]) / r) * 2 - 1
-                            point = warp.inverse(torch.tensor(unit[None], dtype=torch.float32))
-                            best = max(best, float(density(point)[0]))
-                dense[i, j, k] = best > threshold
-    out = np.zeros_like(dense)
-    for i, j, k in zip(*np.nonzero(dense)):
-        out[max(i - dilate, 0) : i + dilate + 1, max(j - dilate, 0) : j + dilate + 1, max(k - dilate, 0) : k + dilate + 1] = True
+    for i, j, k in cells:
+        dense[i, j, k] = lattice_max(i, j, k, s) > threshold
+    out = dense.copy()
+    for i, j, k in cells:
+        near = dense[max(i - border, 0) : i + border + 1, max(j - border, 0) : j + border + 1, max(k - border, 0) : k + border + 1]
+        if border > 0 and not dense[i, j, k] and near.any():
+            out[i, j, k] = lattice_max(i, j, k, border_s) > threshold
     return out
 
 
-@pytest.mark.parametrize("dilate", [0, 1])
-def test_grid_rebuild_matches_a_naive_loop_and_forgets_stale_cells(dilate):
+@pytest.mark.parametrize("border", [0, 1])
+def test_grid_rebuild_matches_a_naive_loop_and_forgets_stale_cells(border):
     aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
-    r, s = 6, 3
+    r, s, border_s = 6, 3, 6
     grid = DensityGrid(BoxWarp(aabb), resolution=r, step=0.01, alpha_threshold=0.01)
 
-    def density(p):  # a slab 0.1 thick (under a third of a 0.33 cell) at x = 0.3, faint haze elsewhere
-        return torch.where((p[:, 0] - 0.3).abs() < 0.05, torch.full_like(p[:, 0], 50.0), torch.full_like(p[:, 0], 1e-3))
+    def density(p):  # a slab at 0.25 < x < 0.37 across the cell face at x = 1/3, faint haze elsewhere:
+        # the 3³ lattice meets it in the cell below the face (at x = 0.28) only, the 6³ in both (x = 0.36)
+        return torch.where((p[:, 0] - 0.31).abs() < 0.06, torch.full_like(p[:, 0], 50.0), torch.full_like(p[:, 0], 1e-3))
 
     grid.update(lambda p: torch.full((len(p),), 1e3), decay=0.95, generator=torch.Generator().manual_seed(0))
     assert grid.occupied_fraction == 1.0  # a dense field earlier: every cell held occupied
-    grid.rebuild(density, samples_per_axis=s, dilate=dilate, chunk=100)
+    grid.rebuild(density, samples_per_axis=s, border=border, border_samples=border_s, chunk=100)
     threshold = float(grid.sigma_threshold.flatten()[0])
-    expected = naive_rebuild(density, grid.warp, r, s, threshold, dilate)
+    expected = naive_rebuild(density, grid.warp, r, s, threshold, border, border_s)
     np.testing.assert_array_equal(grid.bits.numpy(), expected)
     assert grid(torch.tensor([[0.3, 0.0, 0.0], [0.3, -0.9, 0.9]])).all()  # the slab is never skipped
-    assert not grid(torch.tensor([[-0.9, 0.0, 0.0]])).any()  # far from it: free
-    assert expected.mean() == pytest.approx((1 + 2 * dilate) / r)  # one slice of cells, grown by the dilation
+    assert not grid(torch.tensor([[-0.9, 0.0, 0.0], [0.7, 0.0, 0.0]])).any()  # far from it: free
+    # one slice of cells, and with the second look the slice beyond the face the slab crosses, not
+    # the free slice on the other side
+    assert expected.mean() == pytest.approx((1 + border) / r)
 
 
 def test_normalized_distances_invert_the_march():
@@ -627,9 +636,10 @@ def test_carved_cells_stay_empty_through_refreshes_and_rebuilds():
     assert not grid.bits[:2].any() and grid.bits[2:].all()
     grid.update(dense, all_cells=False, generator=torch.Generator().manual_seed(1))
     seen = []
-    grid.rebuild(lambda p: seen.append(p) or dense(p), dilate=1)
+    grid.rebuild(lambda p: seen.append(p) or dense(p), border=1)
     assert not grid.bits[:2].any() and grid.bits[2:].all()
-    # the rebuild evaluates the uncarved cells alone (27 points each) and leaves the carved ones at 0
+    # the rebuild evaluates the uncarved cells alone (27 points each; all occupied, none is looked at again)
+    # and leaves the carved ones at 0
     points = torch.cat(seen)
     assert len(points) == 4 * 36 * 27 and bool((grid.warp(points)[:, 0] > -1 + 2 * 2 / 6).all())
     assert not grid.density[:2].any()

@@ -6,8 +6,8 @@
 One field, five grids, the same points and rays (those of tools/bench.py: 1M uniform points in the
 bounds; 100k rays from the middle of the bounds in random directions, depth + label, no colour):
 
-- ``as trained``: the grid saved with the build (rebuilt from the final field, dilated one cell);
-- ``rebuild, no dilation`` / ``rebuild, dilate 1``: ``DensityGrid.rebuild`` of the same field;
+- ``as trained``: the grid saved with the build (rebuilt from the final field, border cells looked at again);
+- ``rebuild, no border pass`` / ``rebuild, border 1``: ``DensityGrid.rebuild`` of the same field;
 - ``every cell``: nothing skipped (the reference the others are compared with);
 - ``as trained, behind the walls dropped``: cells more than WALL_CELLS cells beyond the walls' inner
   faces (space no camera sees) dropped as well: what skipping unobserved space would give (not a
@@ -16,7 +16,7 @@ bounds; 100k rays from the middle of the bounds in random directions, depth + la
 Also the share of cells above the grid's threshold in the room and behind its walls, by how
 far above (the density of a cell over the density that makes one marching step alpha_threshold
 opaque). Medians of 3 timings; every number comes from this run. Two rows that are the same grid
-("as trained" and "rebuild, dilate 1") show the machine's timing noise.
+("as trained" and "rebuild, border 1") show the machine's timing noise.
 """
 
 from __future__ import annotations
@@ -117,9 +117,9 @@ def report(field: SemanticField) -> None:
         elif name == "as trained, behind the walls dropped":
             grid.bits = trained & torch.as_tensor(room)
         else:
-            grid.rebuild(density, dilate=0 if name.endswith("no dilation") else 1)
+            grid.rebuild(density, border=0 if name.endswith("no border pass") else 1)
 
-    names = ("every cell", "as trained", "rebuild, no dilation", "rebuild, dilate 1", "as trained, behind the walls dropped")
+    names = ("every cell", "as trained", "rebuild, no border pass", "rebuild, border 1", "as trained, behind the walls dropped")
     rows, answers = [], {}
     for name in names:
         use(name)

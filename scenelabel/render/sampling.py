@@ -336,8 +336,11 @@ def free_cells_from_depth(
 REBUILD_SAMPLES = 3
 """Points per axis and cell at which :meth:`DensityGrid.rebuild` evaluates the density (27 per cell)."""
 
-REBUILD_DILATE = 1
-"""Cells by which :meth:`DensityGrid.rebuild` grows the occupied region."""
+REBUILD_BORDER = 1
+""":meth:`DensityGrid.rebuild` looks again at the cells within this many cells of an occupied one."""
+
+REBUILD_BORDER_SAMPLES = 6
+"""Points per axis and cell at which :meth:`DensityGrid.rebuild` looks again at a border cell (216)."""
 
 REOPEN_FACTOR = 2.0
 """:meth:`DensityGrid.reopen` gives a cell this many times the threshold: with a refresh's decay of
@@ -496,36 +499,50 @@ class DensityGrid(nn.Module):
         self,
         density_fn: Callable[[torch.Tensor], torch.Tensor],
         samples_per_axis: int = REBUILD_SAMPLES,
-        dilate: int = REBUILD_DILATE,
+        border: int = REBUILD_BORDER,
+        border_samples: int = REBUILD_BORDER_SAMPLES,
         chunk: int = 1 << 16,
     ) -> None:
         """Recompute every cell from ``density_fn`` as it is now (e.g. at the end of training).
 
         A cell's density is the largest at the centres of an s x s x s lattice of sub-cells
-        (s = ``samples_per_axis``); it is occupied when that is above the threshold, and the
-        occupied cells are then grown by ``dilate`` cells in every direction. The moving average
-        of :meth:`update` keeps a cell occupied for many refreshes after its density has gone
-        (a decay of 0.95 per refresh); this grid follows the field as it is. The lattice sees
-        any surface thicker than a sub-cell, and the dilation keeps the cells beside those it
-        sees (a surface's faint edge), so what the lattice misses lies next to what it finds.
-        Carved cells stay empty (density 0) and are not evaluated.
+        (s = ``samples_per_axis``); it is occupied when that is above the threshold. The cells
+        within ``border`` cells of an occupied one are then looked at again on a finer lattice
+        (``border_samples`` per axis) and keep the larger density: what the coarse lattice passes
+        between (a sheet thinner than a sub-cell, a surface's edge) lies next to what it finds.
+        The moving average of :meth:`update` keeps a cell occupied for many refreshes after its
+        density has gone (a decay of 0.95 per refresh); this grid follows the field as it is.
+        Looking again, rather than marking every cell beside an occupied one, keeps the free space
+        in front of a surface empty: marching skips it (docs/grid_border.md). Carved cells stay
+        empty (density 0) and are not evaluated.
         """
-        r, s = self.resolution, samples_per_axis
+        r = self.resolution
+        cells = (~self.carved).flatten().nonzero().squeeze(1).cpu()  # carved cells stay empty: not evaluated
+        density = torch.zeros(r**3, device=self.density.device)
+        density[cells.to(density.device)] = self._lattice_max(density_fn, cells, samples_per_axis, chunk)
+        self.density = density.reshape(r, r, r)
+        bits = self.density > self.sigma_threshold
+        if border > 0:
+            again = (_dilated(bits, border) & ~bits & ~self.carved).flatten().nonzero().squeeze(1).cpu()
+            finer = self._lattice_max(density_fn, again, border_samples, chunk)
+            density[again.to(density.device)] = torch.maximum(density[again.to(density.device)], finer)
+            self.density = density.reshape(r, r, r)
+        self.bits = (self.density > self.sigma_threshold) & ~self.carved
+
+    def _lattice_max(self, density_fn: Callable[[torch.Tensor], torch.Tensor], cells: torch.Tensor, s: int, chunk: int):
+        """The largest ``density_fn`` at the centres of an s x s x s lattice of sub-cells in each of
+        ``cells`` (flat indices, [n]): [n] float32 on the grid's device."""
+        r = self.resolution
         centres = (torch.arange(s, dtype=torch.float32) + 0.5) / s
         offsets = torch.stack(torch.meshgrid(centres, centres, centres, indexing="ij"), -1).reshape(1, -1, 3)  # [1, s³, 3]
-        cells = (~self.carved).flatten().nonzero().squeeze(1).cpu()  # carved cells stay empty: not evaluated
         idx = torch.stack([cells // (r * r), (cells // r) % r, cells % r], -1).float()  # [n, 3]
         per_chunk = max(chunk // s**3, 1)
-        density = torch.zeros(r**3, device=self.density.device)
+        out = [torch.zeros(0, device=self.density.device)]
         for i in range(0, len(cells), per_chunk):
             unit = ((idx[i : i + per_chunk, None, :] + offsets) / r * 2.0 - 1.0).reshape(-1, 3)
             sigmas = density_fn(self.warp.inverse(unit.to(self.cube.device))).float()
-            density[cells[i : i + per_chunk].to(density.device)] = sigmas.reshape(-1, s**3).amax(-1).to(density.device)
-        self.density = density.reshape(r, r, r)
-        bits = self.density > self.sigma_threshold
-        if dilate > 0:
-            bits = _dilated(bits, dilate)
-        self.bits = bits & ~self.carved
+            out.append(sigmas.reshape(-1, s**3).amax(-1).to(self.density.device))
+        return torch.cat(out)
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         return occupied_at(self.bits, self.cube, self.warp(points))
