@@ -520,13 +520,11 @@ class DensityGrid(nn.Module):
         cells = (~self.carved).flatten().nonzero().squeeze(1).cpu()  # carved cells stay empty: not evaluated
         density = torch.zeros(r**3, device=self.density.device)
         density[cells.to(density.device)] = self._lattice_max(density_fn, cells, samples_per_axis, chunk)
-        self.density = density.reshape(r, r, r)
-        bits = self.density > self.sigma_threshold
         if border > 0:
-            again = (_dilated(bits, border) & ~bits & ~self.carved).flatten().nonzero().squeeze(1).cpu()
-            finer = self._lattice_max(density_fn, again, border_samples, chunk)
-            density[again.to(density.device)] = torch.maximum(density[again.to(density.device)], finer)
-            self.density = density.reshape(r, r, r)
+            bits = density.reshape(r, r, r) > self.sigma_threshold
+            again = (_dilated(bits, border) & ~bits & ~self.carved).flatten().nonzero().squeeze(1)  # on the grid's device
+            density[again] = torch.maximum(density[again], self._lattice_max(density_fn, again.cpu(), border_samples, chunk))
+        self.density = density.reshape(r, r, r)
         self.bits = (self.density > self.sigma_threshold) & ~self.carved
 
     def _lattice_max(self, density_fn: Callable[[torch.Tensor], torch.Tensor], cells: torch.Tensor, s: int, chunk: int):
