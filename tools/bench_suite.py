@@ -61,6 +61,7 @@ VARIANTS: dict[str, dict] = {
     "fast-box": {"preset": "fast", "sampling": {"warp": "box"}},  # a forward-facing room in uniform cells
     "class-balance": {"train": {"class_balance": True}},
     "dense": {"preset": "dense"},
+    "train-3000": {"train": {"steps": 3000}},  # up to 3000 training steps, still at most 150 s of training
     "steps-384": {"sampling": {"n_steps": 384}},
     "steps-192": {"sampling": {"n_steps": 192}},  # the fast preset's marching before 288
     "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the default since docs/suite_grid.md
@@ -133,6 +134,7 @@ NOTES: dict[str, str] = {
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
+    "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
