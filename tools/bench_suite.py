@@ -135,6 +135,7 @@ NOTES: dict[str, str] = {
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
+    "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128]): finer cells, half the finest cell's size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
@@ -175,7 +176,7 @@ DEPTH_NOTES: dict[str, str] = {
 # the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
 # the spread one run per room hides
 SEEDS = (1, 2)
-SEEDED = ("-", "margin-0.05", "depth-bg-scene", "open-64", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
+SEEDED = ("-", "margin-0.05", "depth-bg-scene", "open-64", "planes-256", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
 for _seed in SEEDS:
     for _base in SEEDED:  # the base variant's settings with train.seed added
         _name = f"seed-{_seed}" if _base == "-" else f"{_base}-seed-{_seed}"
