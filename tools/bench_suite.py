@@ -176,7 +176,7 @@ DEPTH_NOTES: dict[str, str] = {
 # the same builds with another training seed (`train.seed`, default 0: initial weights, rays drawn):
 # the spread one run per room hides
 SEEDS = (1, 2)
-SEEDED = ("-", "margin-0.05", "depth-bg-scene", "open-64", "planes-256", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
+SEEDED = ("-", "margin-0.05", "depth-bg-scene", "open-64", "planes-256", "train-3000", "phone-depth", "phone-depth-bg-random", "phone-depth-bg-random-live-4")
 for _seed in SEEDS:
     for _base in SEEDED:  # the base variant's settings with train.seed added
         _name = f"seed-{_seed}" if _base == "-" else f"{_base}-seed-{_seed}"
