@@ -66,7 +66,7 @@ def test_a_run_that_diverges_for_a_while_resumes_from_its_last_good_state_at_hal
     assert rollback["resumed_from"] == 100 and rollback["lr_factor"] == 0.5  # the older of the copies before it
     ckpt = load_checkpoint(tmp_path / "out")
     assert [g["lr_scale"] for g in ckpt.optimizer["param_groups"]] == [0.5, 0.5]  # kept for a resumed build
-    assert ckpt.resumed_at is not None  # and so are the schedules' restart
+    assert ckpt.budget_anchor is None  # no time budget: the schedules follow the steps of the state resumed
     assert ckpt.rollbacks == metrics["rollbacks"]  # and the count, which the next rollback's rate follows
     assert metrics["miou"] > 0.8
 
@@ -76,31 +76,77 @@ def test_a_rollback_takes_the_schedules_back_with_the_state_and_ends_them_with_t
 
     config = preset("quick", {"train": {"steps": 100_000, "time_budget": 100.0}})
     trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    tc = trainer.config.train
+    trainer.schedule.observe(0, tc.steps, 0.0, tc.time_budget)
+    assert trainer.schedule.observe(10, tc.steps, 20.0, tc.time_budget)  # 10 steps in 20 s: the budget binds
+    start = 10 / tc.steps  # the fraction anchored
     trainer.state.elapsed = 20.0
-    trainer.guard.keep(0, trainer._snapshot)  # a fifth of the budget spent
+    assert trainer.progress() == pytest.approx(start)
+    trainer.guard.keep(0, trainer._snapshot)  # the guard's copy (its copies are of every 100th step)
     trainer.state.step, trainer.state.elapsed = 300, 60.0
-    assert trainer.progress() == pytest.approx(0.6)
+    assert trainer.progress() == pytest.approx(start + (1 - start) * 0.5)  # half way from the anchor to the budget's end
     message = trainer._roll_back(Diverged(300, 1.0))
     assert "resumed from step 0 at 0.5 times the learning rate" in message
     assert trainer.state.step == 0 and trainer.state.elapsed == 60.0  # the time spent stays spent
-    assert trainer.progress() == pytest.approx(0.2)  # the schedules of the state resumed
+    assert trainer.progress() == pytest.approx(start)  # the schedules of the state resumed
     trainer.state.elapsed = 80.0  # half way from the rollback to the budget's end
-    assert trainer.progress() == pytest.approx(0.6)
+    halfway = start + (1 - start) * 0.5
+    assert trainer.progress() == pytest.approx(halfway)
     resumed, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
     resumed.load_state_dict(trainer.state_dict())  # a build resumed from a checkpoint keeps the schedules
-    assert resumed.progress() == pytest.approx(0.6)
+    assert resumed.progress() == pytest.approx(halfway)
     trainer._set_lr()
-    tc = trainer.config.train
-    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.5 * tc.lr_encoding * tc.lr_final_ratio**0.6)
+    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.5 * tc.lr_encoding * tc.lr_final_ratio**halfway)
     trainer.state.elapsed = 100.0
     assert trainer.progress() == pytest.approx(1.0)
     assert resumed.guard.rollbacks == trainer.guard.rollbacks  # a resumed build knows the rollback ...
     resumed.guard.keep(0, resumed._snapshot)
     resumed.state.step = 200
     assert "at 0.25 times the learning rate" in resumed._roll_back(Diverged(200, 1.0))  # ... and lowers the rate further
-    assert [r["lr_factor"] for r in resumed.guard.rollbacks] == [0.5, 0.25]
-    assert resumed.state_dict()["rollbacks"] == resumed.guard.rollbacks and "rollbacks" not in resumed._snapshot()
 
+
+def _train_on_a_clock(scene, monkeypatch, seconds_per_step, steps=200, budget=100.0):
+    """A quick training run of ``steps`` steps whose step i takes seconds_per_step(i) by the trainer's
+    clock, with a time budget; returns the trainer after it."""
+    from types import SimpleNamespace
+
+    from scenelabel.train import trainer as trainer_module
+
+    calls = iter(range(10**9))
+    now = {"t": 0.0}
+
+    def perf_counter():  # called once before the first step, then once after each
+        step = next(calls)
+        now["t"] += seconds_per_step(step) if step > 0 else 0.0
+        return now["t"]
+
+    monkeypatch.setattr(trainer_module, "time", SimpleNamespace(perf_counter=perf_counter))
+    config = preset("quick", {"train": {"steps": steps, "time_budget": budget}})
+    trainer, _, _ = prepare_training(load_scene(scene), config, torch.device("cpu"))
+    trainer.run(progress=False)
+    return trainer
+
+
+def test_the_same_seed_trains_the_same_field_on_a_slow_start_or_a_fast_one(scene, monkeypatch):
+    """Two runs inside their time budget, one whose first 16 steps take 1 s each (the budget's
+    fraction spent then leads the steps': 0.16 against 0.08) and one at 0.1 s a step: the schedules
+    follow the steps, so the fields are the same to the bit."""
+    slow_start = _train_on_a_clock(scene, monkeypatch, lambda i: 1.0 if i <= 16 else 0.05)
+    even = _train_on_a_clock(scene, monkeypatch, lambda i: 0.1)
+    for trainer in (slow_start, even):
+        assert trainer.state.step == 200 and trainer.state.elapsed < 100.0 and trainer.schedule.anchor is None
+    assert slow_start.state.elapsed != even.state.elapsed
+    for name, value in slow_start.model.state_dict().items():
+        assert torch.equal(value, even.model.state_dict()[name]), name
+
+
+def test_a_run_its_time_budget_ends_still_ends_its_schedules(scene, monkeypatch):
+    trainer = _train_on_a_clock(scene, monkeypatch, lambda i: 1.0)  # 200 steps of 1 s in a budget of 100 s
+    assert trainer.state.step < 200 and trainer.state.elapsed >= 100.0
+    assert trainer.schedule.anchor is not None and trainer.progress() == 1.0
+    tc = trainer.config.train
+    lr = trainer.optimizer.param_groups[0]["lr"]  # set by the last step, one second before the budget's end
+    assert tc.lr_encoding * tc.lr_final_ratio <= lr <= 1.05 * tc.lr_encoding * tc.lr_final_ratio
 
 def test_non_finite_loss_stops_with_a_clear_message(scene, tmp_path, monkeypatch):
     import scenelabel.train.trainer as train

@@ -326,6 +326,7 @@ def _one_build(spec: dict, workdir: str, queue) -> None:
         "steps": m["steps"],
         "steps_per_second": m["steps_per_second"],
         "rollbacks": m.get("rollbacks", []),
+        "budget_anchor": m.get("budget_anchor"),
         "samples_per_ray": float(np.mean([h["samples_per_ray"] for h in m["history"][-4:]])),
         "psnr": m.get("psnr"),
         "miou": m.get("miou"),
@@ -580,6 +581,7 @@ def write_markdown(rows: list[dict], path: Path, command: str, plot: Path) -> No
     if failed:
         lines += ["## Builds that failed", "", *(f"- {r['scene']} [{r['variant']}]: {r['failed']}" for r in failed), ""]
     lines += _rollbacks(rows)
+    lines += _budget_anchors(rows)
     lines += ["## Targets (rooms at 160x120 with 30-60 views)", "", *_targets(rows), ""]
     if with_depth:
         lines += ["## Targets with phone-like depth (every room)", "", *_depth_targets(rows), ""]
@@ -603,6 +605,22 @@ def _rollbacks(rows: list[dict]) -> list[str]:
         told = ", ".join(f"diverged at step {b['diverged_at']}, resumed from step {b['resumed_from']} at {b['lr_factor']:g} "
                          "times the learning rate" for b in r["rollbacks"])
         lines.append(f"- {r['scene']} [{r['variant']}]: {told}")
+    return [*lines, ""]
+
+
+def _budget_anchors(rows: list[dict]) -> list[str]:
+    """The builds whose time budget was going to end them first, so that their schedules followed the
+    clock from then on (scenelabel.train.schedule); nothing for rows written before builds recorded that."""
+    if not any("budget_anchor" in r for r in rows):
+        return []
+    lines = ["## Builds the time budget ended", ""]
+    anchored = [r for r in rows if r.get("budget_anchor")]
+    if not anchored:
+        return [*lines, "None: every build's schedules followed its step count (scenelabel.train.schedule).", ""]
+    for r in anchored:
+        fraction, seconds = r["budget_anchor"]
+        lines.append(f"- {r['scene']} [{r['variant']}]: {r['steps']} steps in {r['train_seconds']:.0f} s of training; the "
+                     f"schedules followed the clock from {100 * fraction:.0f} % of the run, {seconds:.0f} s in")
     return [*lines, ""]
 
 

@@ -46,7 +46,7 @@ UPGRADE_COMMAND = "scenelabel upgrade-checkpoint"
 """The command that converts a format-1 (pickled) checkpoint: ``scenelabel upgrade-checkpoint PATH``."""
 
 #: The training state's entries (the layout of :meth:`scenelabel.train.trainer.Trainer.state_dict`).
-STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator", "resumed_at", "rollbacks")
+STATE_KEYS = ("model", "occupancy", "coarse_model", "optimizer", "step", "elapsed", "history", "generator", "budget_anchor", "rollbacks")
 _HEADER_KEYS = ("format", "format_version", "scenelabel_version")
 
 
@@ -67,7 +67,8 @@ class Checkpoint:
     elapsed: float = 0.0  # seconds of training so far
     history: list[dict] = field(default_factory=list)  # logged {step, loss, psnr, ...}
     generator: torch.Tensor | None = None  # the training random generator's state (uint8)
-    resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
+    # (fraction, elapsed s) from which the schedules follow the clock to the time budget's end (scenelabel.train.schedule)
+    budget_anchor: tuple[float, float] | None = None
     rollbacks: list[dict] | None = None  # the divergence guard's record: {"diverged_at", "resumed_from", "lr_factor"} each
 
     def training_state(self) -> dict:
@@ -107,7 +108,7 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
         "step": int(checkpoint.step),
         "elapsed": float(checkpoint.elapsed),
         "generator": checkpoint.generator,
-        "resumed_at": checkpoint.resumed_at,
+        "budget_anchor": checkpoint.budget_anchor,
         "rollbacks": checkpoint.rollbacks,
         "json": _to_json(checkpoint.meta, checkpoint.history),
     }
@@ -186,7 +187,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
             elapsed=float(data["elapsed"]),
             history=list(record.get("history", [])),
             generator=data.get("generator"),
-            resumed_at=data.get("resumed_at"),
+            budget_anchor=data.get("budget_anchor", data.get("resumed_at")),  # "resumed_at": before 2026-12-03
             rollbacks=data.get("rollbacks"),
         )
     except (KeyError, TypeError, ValueError) as err:

@@ -484,6 +484,8 @@ def _training_metrics(trainer: Trainer) -> dict:
         "steps_per_second": state.step / max(state.elapsed, 1e-9),
         # each time the run diverged and resumed from an earlier state (scenelabel.train.divergence)
         "rollbacks": trainer.guard.rollbacks,
+        # (fraction, seconds) from which the schedules followed the clock: the budget ended the run (scenelabel.train.schedule)
+        "budget_anchor": trainer.schedule.anchor,
         "world_size": context.world_size,
         "rank": context.rank,
         "rays_per_step": context.world_size * trainer.batch_rays,

@@ -57,6 +57,7 @@ from scenelabel.train.losses import (
     solid_interior_loss,
     total_variation_grad,
 )
+from scenelabel.train.schedule import RunSchedule
 
 __all__ = ["RayData", "rays_for_views", "Trainer", "TrainState"]
 
@@ -357,13 +358,13 @@ class Trainer:
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
         alpha, random_bg = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool], tc.background == RANDOM_BACKGROUND
         self.guard = DivergenceGuard(mean_colour_mse(self.rays.rgb[self.ray_pool], alpha, self.background, random_bg))
-        self.resumed_at: tuple[float, float] | None = None  # the last rollback's (time fraction resumed, elapsed then)
+        self.schedule = RunSchedule()  # the run's fraction done: by steps, by the clock once the budget binds
 
     def _snapshot(self) -> dict:
         """What the divergence guard copies: :meth:`state_dict` (less the guard's record of rollbacks,
-        which a rollback does not undo) and the time budget's fraction spent."""
-        state = {k: v for k, v in self.state_dict().items() if k != "rollbacks"}
-        return {**state, "time_fraction": self._time_fraction()}
+        which a rollback does not undo) and the schedules' (:meth:`RunSchedule.snapshot`)."""
+        state = {k: v for k, v in self.state_dict().items() if k not in ("rollbacks", "budget_anchor")}
+        return {**state, "schedule": self.schedule.snapshot(*self._run_position())}
 
     def _roll_back(self, diverged: Diverged) -> str:
         """Resume from the state the guard hands back, at a lower learning rate (the time
@@ -372,9 +373,9 @@ class Trainer:
         elapsed = self.state.elapsed
         self.load_state_dict(state)
         # the schedules (learning rate, the terms that start or end at a fraction of the run) go back
-        # with the state, and end with the budget, which the time thrown away counts against
-        self.resumed_at = (state["time_fraction"], elapsed)
+        # with the state; the time thrown away counts against the budget
         self.state.elapsed = elapsed
+        self.schedule.resume(state["schedule"], elapsed)
         factor = self.guard.rollbacks[-1]["lr_factor"]
         for group in self.optimizer.param_groups:  # saved with the optimizer: a resumed build keeps it
             group["lr_scale"] = factor
@@ -406,19 +407,13 @@ class Trainer:
         return weight * float(value)
 
     def progress(self) -> float:
-        """Fraction of the run done: by steps, or by the time budget when that is nearer its end."""
-        return min(max(self.state.step / max(self.config.train.steps, 1), self._time_fraction()), 1.0)
+        """Fraction of the run done: by steps until the time budget is going to end the run first
+        (:mod:`scenelabel.train.schedule`)."""
+        return self.schedule.fraction(*self._run_position())
 
-    def _time_fraction(self) -> float:
-        """The time budget's fraction spent (0 without one); after a rollback, from the fraction of
-        the state resumed, in a straight line to 1 at the budget's end."""
-        budget, elapsed = self.config.train.time_budget, self.state.elapsed
-        if not budget:
-            return 0.0
-        if self.resumed_at is None:
-            return elapsed / budget
-        start, then = self.resumed_at
-        return start + (1.0 - start) * (elapsed - then) / max(budget - then, 1e-9)
+    def _run_position(self) -> tuple[int, int, float, float | None]:
+        """(step, steps, elapsed seconds, time budget): what the schedule reads."""
+        return self.state.step, self.config.train.steps, self.state.elapsed, self.config.train.time_budget
 
     def _set_lr(self) -> None:
         factor = self.config.train.lr_final_ratio ** self.progress()
@@ -561,8 +556,8 @@ class Trainer:
             "history": self.state.history,
             "generator": self.generator.get_state(),
         }
-        if self.resumed_at is not None:  # a rollback's schedules: a resumed build keeps them
-            data["resumed_at"] = self.resumed_at
+        if self.schedule.anchor is not None:  # the schedules follow the clock: a resumed build keeps them so
+            data["budget_anchor"] = self.schedule.anchor
         if self.guard.rollbacks:  # and its count, so that a later rollback lowers the rate further
             data["rollbacks"] = [dict(r) for r in self.guard.rollbacks]
         if self.coarse is not None:
@@ -580,7 +575,7 @@ class Trainer:
         self.state = TrainState(step=int(data["step"]), elapsed=float(data["elapsed"]), history=list(data.get("history", [])))
         if "generator" in data:
             self.generator.set_state(data["generator"])
-        self.resumed_at = tuple(data["resumed_at"]) if "resumed_at" in data else None
+        self.schedule = RunSchedule(data.get("budget_anchor"))
         self.guard.rollbacks = [dict(r) for r in data.get("rollbacks", self.guard.rollbacks)]
 
     def drop_data_parallel(self) -> None:
@@ -626,6 +621,9 @@ class Trainer:
                 if self.dist.distributed:  # the ranks' mean: the same schedule and budget everywhere
                     elapsed = float(all_reduce_mean(torch.tensor([elapsed], dtype=torch.float64, device=self.device))[0])
                 self.state.elapsed = elapsed
+                if self.schedule.observe(*self._run_position()):
+                    bar.write(f"step {self.state.step}: the time budget will end the run before step {tc.steps}; "
+                              "the schedules follow the clock to its end")
                 if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
                     logs["time"] = self.state.elapsed
                     logs["threads"] = torch.get_num_threads()
