@@ -385,7 +385,7 @@ class TrainConfig:
     batch_rays: int = 1024
     lr_encoding: float = 2e-2
     lr_mlp: float = 5e-3
-    lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the last step
+    lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the run's end (last step or budget)
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
     # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off).
     # "auto": DISTORTION_AUTO_WEIGHT where the build measured the observed geometry (an input without
@@ -426,7 +426,8 @@ class TrainConfig:
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
-    # seconds; training stops early when spent (None: no budget). "auto": TIME_BUDGET, or where the
+    # seconds; training stops early when spent (None: no budget), and once it is going to, the schedules
+    # follow the clock to its end (scenelabel.train.schedule). "auto": TIME_BUDGET, or where the
     # training rays carry sensor depth what a BUILD_SECONDS_WITH_DEPTH build leaves; the build saves the number
     time_budget: float | str | None = None
     seed: int = 0

@@ -22,10 +22,11 @@ from collections import deque
 __all__ = ["JUDGE_FROM", "RATE_WINDOW", "RunSchedule", "fraction_of_run"]
 
 JUDGE_FROM = 0.2
-"""The budget is judged once the step fraction or the budget's fraction spent reaches this. On
-studio-3x3 with the default build the first 16 steps (the grid's warm-up, every cell occupied) ran at
-about a tenth of the rate of steps 200-800 (a probe outside the repo's scripts): a rate measured in
-the first tenth of the run would take most default builds for ones the budget ends."""
+"""The budget is judged once the step fraction or the budget's fraction spent reaches this. A
+default build's first steps (the grid's warm-up, every cell occupied, then a grid still mostly full)
+run several times slower than its later ones (a probe of studio-3x3 outside the repo's scripts): a
+rate measured in the first tenth of the run would take builds that end well inside their budget for
+ones the budget ends."""
 
 RATE_WINDOW = 100
 """Steps over which the rate that the judgement projects is measured."""
