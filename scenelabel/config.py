@@ -553,7 +553,7 @@ PRESETS: dict[str, dict] = {
     # Training marches every occupied sample (train_min_trans 0): the pass that finds where a ray
     # turns opaque reads all of the grid's channels, as the evaluation itself does, and on fern it
     # cost more than it saved (docs/real_fern_train_stop.md: 2149 steps in 480 s, against 2500 in
-    # 360 s without it, docs/real_fern_auto.md)
+    # 360 s without it, docs/real_fern_auto_8a3a480.md)
     "voxels": {
         "field": {
             "encoding": "dense", "head": "direct", "view_dependent": False, "grid_resolution": 256, "density_bias": 0.0,

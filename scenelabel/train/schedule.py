@@ -2,9 +2,10 @@
 the terms that start or end at a fraction of the run).
 
 A run ends at ``train.steps`` or at ``train.time_budget`` seconds, whichever comes first. The
-fraction follows the step count, so that the same seed gives the same build on a fast machine and
-a slow one, until the budget is going to end the run first; from then on it also follows the clock,
-in a straight line to 1 at the budget's end, so a run the budget stops still ends its schedules.
+fraction follows the step count, so that a run that ends on its step count gives the same build
+for the same seed however fast its steps ran, until the budget is going to end the run first; from
+then on it also follows the clock, in a straight line to 1 at the budget's end, so a run the
+budget stops still ends its schedules.
 
 The first steps run slower than the rest (the density grid is still full), so the time budget's
 fraction spent leads the step fraction early even in runs that end on their step count: a schedule
@@ -38,7 +39,8 @@ def fraction_of_run(step: int, steps: int, elapsed: float, budget: float | None,
     ``step / steps`` while ``anchor`` is None; with ``anchor = (start, then)`` (the fraction and the
     elapsed seconds when the budget was found to end the run first) the larger of that and
     ``start + (1 - start) * (elapsed - then) / (budget - then)``, which reaches 1 at the budget's
-    end. ``budget - then`` is floored at 1e-9 s: an anchor at the budget's end gives 1, not a division by 0.
+    end. ``budget - then`` is floored at 1e-9 s, so an anchor at the budget's end gives a finite
+    fraction (1 from any later time on), not a division by 0.
     """
     by_steps = step / max(steps, 1)
     if anchor is None or not budget:
