@@ -58,9 +58,9 @@ def _run(schedule, seconds_per_step, steps, budget):
 
 
 def test_a_run_that_ends_on_its_steps_follows_the_steps_however_slow_its_start():
-    """The default build's pattern (a probe of studio-3x3): the grid's warm-up steps run at a tenth of
-    the later rate, so the budget's fraction spent leads the steps' early on, and the run still ends
-    well inside the budget. Two clocks, one schedule."""
+    """The default build's pattern (a probe of studio-3x3): the grid's warm-up steps run several times
+    slower than the later ones, so the budget's fraction spent leads the steps' early on, and the run
+    still ends well inside the budget. Two clocks, one schedule."""
     steps, budget = 2000, 150.0
     runs = [
         _run(RunSchedule(), lambda i: 0.5 if i <= 16 else 0.06, steps, budget),
