@@ -609,11 +609,12 @@ def _rollbacks(rows: list[dict]) -> list[str]:
 
 
 def _budget_anchors(rows: list[dict]) -> list[str]:
-    """The builds whose time budget was going to end them first, so that their schedules followed the
-    clock from then on (scenelabel.train.schedule); nothing for rows written before builds recorded that."""
+    """The builds whose time budget was projected to end them before their last step, so that their
+    schedules followed the clock from then on (scenelabel.train.schedule; a build whose steps then sped up
+    may still reach its last step); nothing for rows written before builds recorded that."""
     if not any("budget_anchor" in r for r in rows):
         return []
-    lines = ["## Builds the time budget ended", ""]
+    lines = ["## Builds whose schedules followed the clock", ""]
     anchored = [r for r in rows if r.get("budget_anchor")]
     if not anchored:
         return [*lines, "None: every build's schedules followed its step count (scenelabel.train.schedule).", ""]

@@ -484,7 +484,7 @@ def _training_metrics(trainer: Trainer) -> dict:
         "steps_per_second": state.step / max(state.elapsed, 1e-9),
         # each time the run diverged and resumed from an earlier state (scenelabel.train.divergence)
         "rollbacks": trainer.guard.rollbacks,
-        # (fraction, seconds) from which the schedules followed the clock: the budget ended the run (scenelabel.train.schedule)
+        # (fraction, seconds) from which the schedules followed the clock: the budget was going to end the run (train.schedule)
         "budget_anchor": trainer.schedule.anchor,
         "world_size": context.world_size,
         "rank": context.rank,

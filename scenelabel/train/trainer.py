@@ -358,7 +358,7 @@ class Trainer:
         self.carve_released = False  # sampling.depth_carve_until: the carve's border handed back once
         alpha, random_bg = None if self.rays.alpha is None else self.rays.alpha[self.ray_pool], tc.background == RANDOM_BACKGROUND
         self.guard = DivergenceGuard(mean_colour_mse(self.rays.rgb[self.ray_pool], alpha, self.background, random_bg))
-        self.schedule = RunSchedule()  # the run's fraction done: by steps, by the clock once the budget binds
+        self.schedule = RunSchedule()  # the run's fraction done: by steps, by the clock once the budget will end the run
 
     def _snapshot(self) -> dict:
         """What the divergence guard copies: :meth:`state_dict` (less the guard's record of rollbacks,
