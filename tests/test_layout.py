@@ -93,36 +93,19 @@ def test_boundary_rays_pass_through_the_pixel_edges_where_the_classes_meet():
         boundary_rays(cams, [label, label], FLOOR, WALL)
 
 
-def test_spread_matches_a_naive_count():
-    """Σ count² / n² over square bins against a float64 dictionary count, in 1D and 2D."""
-    from scenelabel.geometry.layout import _spread
+def test_room_layout_is_the_same_counted_or_sorted(room, monkeypatch):
+    """The layout search counts most of its 1D bins in an array: sorting every row instead (checked
+    against a dictionary count in tests/test_bin_agreement.py) finds the very same layout, to the bit."""
+    import scenelabel.geometry.bin_agreement as bin_agreement
 
-    rng = np.random.default_rng(1)
-    points = rng.normal(0.0, 0.3, (500, 2))
-    for k in (1, 2):
-        counts: dict[tuple, int] = {}
-        for p in points[:, :k]:
-            key = tuple(int(np.floor(x / 0.05)) for x in p)
-            counts[key] = counts.get(key, 0) + 1
-        expected = sum(c * c for c in counts.values()) / len(points) ** 2
-        assert _spread(points[:, :k], 0.05) == pytest.approx(expected, rel=1e-12)
-    assert _spread(np.zeros((7, 2)), 0.05) == 1.0 and _spread(points[:0], 0.05) == 0.0
-
-
-def test_spreads_count_each_row_over_its_valid_entries_alone():
-    """Per row against a naive count over the valid entries; a row without any gives 0."""
-    from scenelabel.geometry.layout import _spreads
-
-    rng = np.random.default_rng(2)
-    cells = rng.integers(-3, 3, (4, 60, 2))
-    valid = rng.random((4, 60)) < 0.7
-    valid[3] = False
-    got = _spreads(cells, valid)
-    for row in range(3):
-        keys = [tuple(c) for c in cells[row][valid[row]]]
-        counts = [keys.count(k) for k in set(keys)]
-        assert got[row] == pytest.approx(sum(c * c for c in counts) / len(keys) ** 2, rel=1e-12)
-    assert got[3] == 0.0
+    args = (room.cameras, room.labels, layout_class_ids(room.classes), room.images)
+    counted = room_layout(*args)
+    monkeypatch.setattr(bin_agreement, "squares_by_counting", lambda cells, valid: None)
+    sorted_ = room_layout(*args)
+    assert counted.walls == sorted_.walls and (counted.floor, counted.ceiling) == (sorted_.floor, sorted_.ceiling)
+    np.testing.assert_array_equal(counted.up, sorted_.up)
+    np.testing.assert_array_equal(counted.basis, sorted_.basis)
+    assert (counted.on_walls, counted.near_walls) == (sorted_.on_walls, sorted_.near_walls)
 
 
 def test_running_mean_matches_a_naive_window():

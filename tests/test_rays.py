@@ -53,3 +53,18 @@ def test_normalize_directions_rejects_zero_and_nan():
     assert norms[0] == 5.0
     with pytest.raises(InputError, match="zero-length or non-finite"):
         normalize_directions(np.array([[0.0, 0, 0], [np.nan, 0, 1]]))
+
+
+def test_row_norms_match_a_float64_loop_and_numpy():
+    """sqrt((x² + y²) + z²) per row, as a float64 loop sums it; within an ulp of np.linalg.norm
+    (on this machine's numpy, to the bit: rays did not move when they took row_norms)."""
+    import math
+
+    from scenelabel.geometry.rays import row_norms
+
+    rng = np.random.default_rng(0)
+    vectors = rng.normal(size=(2000, 3)) * rng.uniform(1e-3, 1e3, (2000, 1))
+    expected = [math.sqrt((x * x + y * y) + z * z) for x, y, z in vectors]
+    np.testing.assert_array_equal(row_norms(vectors), expected)
+    np.testing.assert_allclose(row_norms(vectors), np.linalg.norm(vectors, axis=-1), rtol=2e-16, atol=0)
+    assert row_norms(np.zeros((0, 3))).shape == (0,)

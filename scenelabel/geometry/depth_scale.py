@@ -115,11 +115,12 @@ def scale_from_depth(
     rng = np.random.default_rng(seed)
     samples = []
     for i, j in _pairs(views, max_pairs):
-        origins, directions = rays_from_cameras(cameras, i)
         measured = depths[i].reshape(-1).astype(np.float64)
         valid = np.flatnonzero(np.isfinite(measured) & (measured > 0))
         pick = rng.choice(valid, min(PIXELS_PER_VIEW, len(valid)), replace=False) if len(valid) else valid
-        samples.append((j, origins[0], directions[pick], measured[pick]))
+        width = depths[i].shape[1]  # the camera's: pixel k is (k % width + 0.5, k // width + 0.5)
+        directions = rays_from_cameras(cameras, i, np.column_stack([pick % width + 0.5, pick // width + 0.5]))[1]
+        samples.append((j, cameras.c2w[i, :3, 3], directions, measured[pick]))
 
     def counts(scales: np.ndarray, per_pair: int = PIXELS_PER_VIEW) -> np.ndarray:
         return _agreements([(j, o, d[:per_pair], m[:per_pair]) for j, o, d, m in samples], cameras, depths, scales)

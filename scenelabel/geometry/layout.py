@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scenelabel.errors import InputError
+from scenelabel.geometry.bin_agreement import bin_spreads
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.geometry.vanishing import tilted, vertical_from_images, world_axis_across
@@ -143,6 +144,7 @@ _VIEW_RAYS = 10  # boundary rays a view must hold to count towards MIN_BOUNDARY_
 _EDGE_SLACK = 0.1  # world units a wall is taken to reach past its outermost boundary points
 _FAR = 1e3  # world units: boundary rays meeting a plane farther than this tell nothing about it
 _HEIGHT_REACH = 0.3  # world units about the starting up's heights a tilted up's are searched within
+_WALLS_CHUNK = 1 << 20  # boundary cuts x angles binned at once in :func:`_walls`' search
 _WALL_GAP = 0.2  # world units: two walls along one axis are at least this far apart
 _BACKGROUND = 0.5  # world units each side over which the cuts' background count is a mean
 
@@ -231,27 +233,6 @@ def boundary_rays(
     return np.concatenate(origins), np.concatenate(directions)
 
 
-def _spreads(cells: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """[m]: per row of ``cells`` [m, n, k] (integer bin coordinates, k <= 2, each below 2^30 in
-    size), Σ count² / v² over the bins of its ``valid`` [m, n] entries (v of them): 1 when they
-    all share one bin, 1 / v when none does, 0 when v = 0."""
-    m, n = valid.shape
-    key = cells[..., 0] if cells.shape[-1] == 1 else cells[..., 0] * (1 << 32) + cells[..., 1]
-    key = np.sort(np.where(valid, key, np.iinfo(np.int64).max - np.arange(n)), axis=1)  # invalid: alone
-    starts = np.ones((m, n), bool)
-    starts[:, 1:] = key[:, 1:] != key[:, :-1]
-    counts = np.bincount(np.cumsum(starts.ravel()) - 1).astype(np.float64)
-    squares = np.bincount(np.nonzero(starts)[0], weights=counts**2, minlength=m)
-    v = valid.sum(axis=1)
-    return np.where(v > 0, (squares - (n - v)) / np.maximum(v, 1) ** 2, 0.0)
-
-
-def _spread(points: np.ndarray, bin_size: float) -> float:
-    """:func:`_spreads` of ``points`` [n, k] (k <= 2) binned in squares of ``bin_size``."""
-    cells = np.floor(points / bin_size).astype(np.int64)[None]
-    return float(_spreads(cells, np.ones(cells.shape[:2], bool))[0])
-
-
 def _horizontal(up: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """[2, 3]: ``direction`` made normal to ``up`` (unit), and ``up x`` it."""
     b1 = direction - (direction @ up) * up
@@ -276,17 +257,20 @@ def _cut_cells(
 
 
 def _agreement(cells: np.ndarray, valid: np.ndarray, along_walls: bool) -> np.ndarray:
-    """[m] :func:`_spreads` of 2D cells, or (``along_walls``) the sum of their two coordinates'."""
+    """[m] :func:`bin_spreads` of 2D cells, or (``along_walls``) the sum of their two coordinates'
+    (one call: the rows of both coordinates at once)."""
     if not along_walls:
-        return _spreads(cells, valid)
-    return _spreads(cells[..., :1], valid) + _spreads(cells[..., 1:], valid)
+        return bin_spreads(cells, valid)
+    m = len(valid)
+    spreads = bin_spreads(np.concatenate([cells[..., :1], cells[..., 1:]]), np.concatenate([valid, valid]))
+    return spreads[:m] + spreads[m:]
 
 
 def _cut_agreements(
     rays: tuple[np.ndarray, np.ndarray], up: np.ndarray, heights: np.ndarray, bin_size: float,
     walls: np.ndarray | None = None,
 ) -> np.ndarray:
-    """[m]: how well the rays, cut by each plane ``x . up = heights[j]``, agree: :func:`_spreads` of
+    """[m]: how well the rays, cut by each plane ``x . up = heights[j]``, agree: :func:`bin_spreads` of
     the cuts in the plane (2D bins), or, given the walls' direction ``walls`` [3], the sum of the
     spreads of their two coordinates along the walls (1D bins: a wall's points share one bin at the
     true height and up, which counts far more points per bin than 2D bins). Bins scale with the
@@ -371,13 +355,15 @@ def _refined_up(
         return _joint_agreement(floor_rays, ceiling_rays, tilted_up, (floor, ceiling), along), [floor, ceiling]
 
     for half, step in passes:
+        seen: dict[bytes, tuple[float, list]] = {}  # a pass's scores depend on the angles alone
         for axis in ((0, 1) if walls is None else (0, 1, 2) if tilt else (2,)) * 2:
             candidates = []
             for x in np.arange(-half, half + 1e-9, step):
                 c = angles.copy()
                 c[axis] += x
                 candidates.append(c)
-            found = [scored(c) for c in candidates]
+            found = [seen[c.tobytes()] if c.tobytes() in seen else seen.setdefault(c.tobytes(), scored(c))
+                     for c in candidates]
             k = int(np.argmax([f[0] for f in found]))
             angles = candidates[k]
         heights, reach = found[k][1], 0.05
@@ -463,11 +449,12 @@ def _walls(points: np.ndarray) -> tuple[np.ndarray, tuple[Wall, ...]]:
     def rotation(t: float) -> np.ndarray:
         return np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
 
-    def bunched(t: float) -> float:
-        q = points @ rotation(t).T
-        return _spread(q[:, :1], BIN) + _spread(q[:, 1:], BIN)
+    def bunched(ts: np.ndarray) -> np.ndarray:  # [k] for k angles at once: one row per angle and axis
+        cells = np.stack([np.floor(points @ rotation(t).T / BIN).astype(np.int64) for t in ts])  # [k, n, 2]
+        return _agreement(cells, np.ones(cells.shape[:2], bool), along_walls=True)
 
-    scores = [bunched(t) for t in angles]
+    chunk = max(1, _WALLS_CHUNK // len(points))
+    scores = np.concatenate([bunched(angles[i:i + chunk]) for i in range(0, len(angles), chunk)])
     rot = rotation(float(angles[int(np.argmax(scores))]))
     q = points @ rot.T
     walls = []

