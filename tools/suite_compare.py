@@ -28,6 +28,11 @@ of the count of builds that came out the same."""
 SHOWN = ("miou", "psnr", "depth_rel_median", "surface_field", "surface_map", "fscore", "build_seconds")
 
 
+def _setup_seconds(row: dict) -> float | None:
+    """The seconds a build spent before training, where its time plan recorded them (builds with depth)."""
+    return (row.get("time_plan") or {}).get("setup_seconds")
+
+
 def _rows(path: Path) -> tuple[str, dict[tuple[str, str], dict]]:
     data = json.loads(path.read_text())
     rows = [r for r in data["rows"] if "failed" not in r]
@@ -95,7 +100,14 @@ def compare(before_path: Path, after_path: Path, out: Path) -> list[str]:
         if None not in speed.values():
             scaled = [r * speed["before"] / speed["after"] for r in ratios]
             told += f"; divided by the machines' speed ratio: median {statistics.median(scaled):.2f} ({min(scaled):.2f}-{max(scaled):.2f})"
-        lines += ["", told + ".", ""]
+        lines += ["", told + "."]
+        setups = [(_setup_seconds(b), _setup_seconds(a)) for b, a in pairs]
+        if all(x is not None and y is not None for x, y in setups):
+            cells = ", ".join(f"{b['scene']} {x:.1f} -> {y:.1f}" for (b, _), (x, y) in zip(pairs, setups))
+            ratios = [y / x for x, y in setups]
+            lines += ["", f"Seconds before training (the time plan's setup), before -> after: {cells}; after / before "
+                      f"median {statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})."]
+        lines.append("")
     return lines
 
 
