@@ -310,7 +310,7 @@ def resample_depth(
         fy = fy[:, None]
         values = [depth[y0[:, None], x0], depth[y0[:, None], x1], depth[y1[:, None], x0], depth[y1[:, None], x1]]
         weights = [(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx]  # each [r, width]
-        used = [np.broadcast_to(w > WEIGHT_EPS, v.shape) for w, v in zip(weights, values)]
+        used = [w > WEIGHT_EPS for w in weights]
         finite = [np.isfinite(v) for v in values]
         safe = [np.where(u & f, v, np.nan) for u, f, v in zip(used, finite, values)]
         # the taps summed one after another, as numpy sums a last axis of four: the same bits as
