@@ -222,7 +222,7 @@ def test_depth_loss_is_robust_to_an_outlier_and_zero_without_measurements():
     pred = torch.ones(4, requires_grad=True)
     loss = depth_loss(pred, torch.full((4,), float("nan")))
     loss.backward()
-    assert float(loss) == 0.0 and torch.all(pred.grad == 0)
+    assert float(loss.detach()) == 0.0 and torch.all(pred.grad == 0)
 
 
 def test_depth_loss_finite_at_extreme_distances():
@@ -231,8 +231,8 @@ def test_depth_loss_finite_at_extreme_distances():
         pred = (target * 1.5).requires_grad_()
         loss = depth_loss(pred, target)
         loss.backward()
-        assert math.isfinite(float(loss)) and torch.all(torch.isfinite(pred.grad))
-        assert math.isclose(float(loss), 0.5 - 0.5 * DEPTH_HUBER, rel_tol=1e-5)  # scale-free: a relative error
+        assert math.isfinite(float(loss.detach())) and torch.all(torch.isfinite(pred.grad))
+        assert math.isclose(float(loss.detach()), 0.5 - 0.5 * DEPTH_HUBER, rel_tol=1e-5)  # scale-free: a relative error
 
 
 def test_free_space_loss_means_front_weight_over_measured_rays():
