@@ -1,0 +1,47 @@
+"""tools/suite_compare.py: two runs of the suite, room by room, on made-up rows with known answers."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+TOOL = Path(__file__).resolve().parents[1] / "tools" / "suite_compare.py"
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("suite_compare", TOOL)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _row(scene: str, miou: float, build: float, setup: float | None, code: str) -> dict:
+    row = {"scene": scene, "variant": "phone-depth", "tuning": scene != "held", "miou": miou, "psnr": 30.0,
+           "depth_rel_median": 0.01, "surface_field": 0.9, "surface_map": 0.9, "fscore": 0.9, "free_field": 1.0,
+           "miou_common": miou, "samples_per_ray": 8.0, "build_seconds": build, "train_seconds": 60.0,
+           "reference_seconds": 0.2, "code": code}
+    if setup is not None:
+        row["time_plan"] = {"setup_seconds": setup}
+    return row
+
+
+def test_compare_counts_rooms_that_came_out_the_same_and_their_setup(tmp_path):
+    before = {"rows": [_row("a", 0.9, 100.0, 10.0, "old"), _row("held", 0.8, 100.0, 8.0, "old")]}
+    after = {"rows": [_row("a", 0.9, 80.0, 5.0, "new"), _row("held", 0.85, 90.0, 6.0, "new")]}
+    paths = [tmp_path / "before.json", tmp_path / "after.json"]
+    for path, run in zip(paths, (before, after)):
+        path.write_text(json.dumps(run))
+    text = "\n".join(_tool().compare(*paths, tmp_path / "out.md"))
+    # a: only timings and the code moved; held: its mIoU rose
+    assert "Builds the same in every recorded figure but the timings: 1 of 2 (a)." in text
+    assert "| held out | miou | 0.8 -> 0.85 | 0.8 -> 0.85 | 1 / 0 / 0 |" in text
+    assert "median 0.85 (0.80-0.90)" in text  # build time after / before: 0.8 and 0.9
+    assert "a 10.0 -> 5.0, held 8.0 -> 6.0; after / before median 0.62 (0.50-0.75)." in text
+
+
+def test_compare_leaves_setup_out_where_a_run_has_no_time_plan(tmp_path):
+    paths = [tmp_path / "before.json", tmp_path / "after.json"]
+    for path, setup in zip(paths, (None, 5.0)):
+        path.write_text(json.dumps({"rows": [_row("a", 0.9, 100.0, setup, "x")]}))
+    assert not any("Seconds before training" in line for line in _tool().compare(*paths, tmp_path / "out.md"))
