@@ -6,7 +6,13 @@ import pytest
 
 from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.geometry.rays import camera_directions_from_pixels, normalize_directions, pixel_grid, rays_from_cameras
+from scenelabel.geometry.rays import (
+    camera_directions_from_pixels,
+    normalize_directions,
+    pixel_centres,
+    pixel_grid,
+    rays_from_cameras,
+)
 
 
 def test_pixel_grid_centres_row_major():
@@ -15,6 +21,7 @@ def test_pixel_grid_centres_row_major():
     np.testing.assert_array_equal(g[0], [0.5, 0.5])
     np.testing.assert_array_equal(g[2], [2.5, 0.5])
     np.testing.assert_array_equal(g[3], [0.5, 1.5])
+    np.testing.assert_array_equal(pixel_centres(np.array([5, 0, 3]), 3), g[[5, 0, 3]])  # the rows they index
 
 
 def test_principal_point_pixel_looks_forward():

@@ -33,6 +33,11 @@ def _setup_seconds(row: dict) -> float | None:
     return (row.get("time_plan") or {}).get("setup_seconds")
 
 
+def _ratios(ratios: list[float]) -> str:
+    """'median M (lo-hi)' of after / before ratios."""
+    return f"median {statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})"
+
+
 def _rows(path: Path) -> tuple[str, dict[tuple[str, str], dict]]:
     data = json.loads(path.read_text())
     rows = [r for r in data["rows"] if "failed" not in r]
@@ -96,17 +101,15 @@ def compare(before_path: Path, after_path: Path, out: Path) -> list[str]:
         same = [b["scene"] for b, a in pairs if all(b.get(k) == a.get(k) for k in (b.keys() | a.keys()) - TIMINGS)]
         lines += ["", f"Builds the same in every recorded figure but the timings: {len(same)} of {len(pairs)}"
                   + (f" ({', '.join(same)})." if same else ".")]
-        told = f"Build time after / before, same room: median {statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})"
+        told = f"Build time after / before, same room: {_ratios(ratios)}"
         if None not in speed.values():
-            scaled = [r * speed["before"] / speed["after"] for r in ratios]
-            told += f"; divided by the machines' speed ratio: median {statistics.median(scaled):.2f} ({min(scaled):.2f}-{max(scaled):.2f})"
+            told += f"; divided by the machines' speed ratio: {_ratios([r * speed['before'] / speed['after'] for r in ratios])}"
         lines += ["", told + "."]
         setups = [(_setup_seconds(b), _setup_seconds(a)) for b, a in pairs]
         if all(x is not None and y is not None for x, y in setups):
             cells = ", ".join(f"{b['scene']} {x:.1f} -> {y:.1f}" for (b, _), (x, y) in zip(pairs, setups))
-            ratios = [y / x for x, y in setups]
             lines += ["", f"Seconds before training (the time plan's setup), before -> after: {cells}; after / before "
-                      f"median {statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})."]
+                      f"{_ratios([y / x for x, y in setups])}."]
         lines.append("")
     return lines
 

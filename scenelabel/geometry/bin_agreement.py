@@ -49,10 +49,10 @@ def squares_by_counting(cells: np.ndarray, valid: np.ndarray) -> np.ndarray | No
     more than :data:`COUNTING_SPAN` times the entries (sorting is then cheaper)."""
     m, n = valid.shape
     key = cells[..., 0]
-    lo = np.where(valid, key, np.iinfo(np.int64).max).min(axis=1, initial=np.iinfo(np.int64).max)
-    hi = np.where(valid, key, np.iinfo(np.int64).min).max(axis=1, initial=np.iinfo(np.int64).min)
-    empty = hi < lo
-    lo, span = np.where(empty, 0, lo), np.where(empty, 1, hi - lo + 1)
+    some = valid.any(axis=1)  # a row without valid entries gets one empty bin at 0
+    lo = np.where(some, np.where(valid, key, np.iinfo(np.int64).max).min(axis=1), 0)
+    hi = np.where(some, np.where(valid, key, np.iinfo(np.int64).min).max(axis=1), 0)
+    span = hi - lo + 1
     if span.sum() > COUNTING_SPAN * m * n + 1024:
         return None
     offsets = np.concatenate([[0], np.cumsum(span)[:-1]])

@@ -15,7 +15,7 @@ import numpy as np
 
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lens import inside_image, project_points
-from scenelabel.geometry.rays import rays_from_cameras
+from scenelabel.geometry.rays import pixel_centres, rays_from_cameras
 
 __all__ = ["scale_from_depth", "AGREEMENT", "MAX_PAIRS", "MIN_AGREEING"]
 
@@ -118,8 +118,7 @@ def scale_from_depth(
         measured = depths[i].reshape(-1).astype(np.float64)
         valid = np.flatnonzero(np.isfinite(measured) & (measured > 0))
         pick = rng.choice(valid, min(PIXELS_PER_VIEW, len(valid)), replace=False) if len(valid) else valid
-        width = depths[i].shape[1]  # the camera's: pixel k is (k % width + 0.5, k // width + 0.5)
-        directions = rays_from_cameras(cameras, i, np.column_stack([pick % width + 0.5, pick // width + 0.5]))[1]
+        directions = rays_from_cameras(cameras, i, pixel_centres(pick, depths[i].shape[1]))[1]
         samples.append((j, cameras.c2w[i, :3, 3], directions, measured[pick]))
 
     def counts(scales: np.ndarray, per_pair: int = PIXELS_PER_VIEW) -> np.ndarray:

@@ -362,8 +362,10 @@ def _refined_up(
                 c = angles.copy()
                 c[axis] += x
                 candidates.append(c)
-            found = [seen[c.tobytes()] if c.tobytes() in seen else seen.setdefault(c.tobytes(), scored(c))
-                     for c in candidates]
+            for c in candidates:
+                if c.tobytes() not in seen:
+                    seen[c.tobytes()] = scored(c)
+            found = [seen[c.tobytes()] for c in candidates]
             k = int(np.argmax([f[0] for f in found]))
             angles = candidates[k]
         heights, reach = found[k][1], 0.05

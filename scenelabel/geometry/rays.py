@@ -12,7 +12,7 @@ from scenelabel.errors import InputError
 from scenelabel.geometry.cameras import Cameras
 from scenelabel.geometry.lens import CAMERA_MODELS, FISHEYE, PINHOLE, fisheye_directions_from_pixels
 
-__all__ = ["row_norms", "pixel_grid", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
+__all__ = ["row_norms", "pixel_grid", "pixel_centres", "camera_directions_from_pixels", "rays_from_cameras", "normalize_directions"]
 
 DIRECTION_EPS = 1e-12
 """Directions shorter than this cannot be normalised; :func:`normalize_directions` rejects them."""
@@ -38,8 +38,15 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     Returns:
         [height * width, 2] float64 (u, v) = (col + 0.5, row + 0.5).
     """
-    rows, cols = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-    return np.stack([cols.ravel() + 0.5, rows.ravel() + 0.5], axis=-1).astype(np.float64)
+    return pixel_centres(np.arange(height * width), width)
+
+
+def pixel_centres(indices: np.ndarray, width: int) -> np.ndarray:
+    """Continuous coordinates of the centres of pixels ``indices`` [k] (row-major, in an image
+    ``width`` pixels wide): [k, 2] float64 (u, v) = (index % width + 0.5, index // width + 0.5), the
+    rows of :func:`pixel_grid` they index."""
+    indices = np.asarray(indices, dtype=np.int64)
+    return np.stack([indices % width + 0.5, indices // width + 0.5], axis=-1).astype(np.float64)
 
 
 def camera_directions_from_pixels(
