@@ -61,6 +61,8 @@ VARIANTS: dict[str, dict] = {
     "fast-box": {"preset": "fast", "sampling": {"warp": "box"}},  # a forward-facing room in uniform cells
     "class-balance": {"train": {"class_balance": True}},
     "semantic-0.1": {"train": {"semantic_weight": 0.1}},
+    "edge-colour-0.25": {"train": {"edge_colour_weight": 0.25}},
+    "edge-colour-0": {"train": {"edge_colour_weight": 0.0}},
     "semantic-0.25": {"train": {"semantic_weight": 0.25}},
     "dense": {"preset": "dense"},
     "train-3000": {"train": {"steps": 3000}},  # up to 3000 training steps, still at most 150 s of training
