@@ -387,7 +387,6 @@ class TrainConfig:
     lr_mlp: float = 5e-3
     lr_final_ratio: float = 0.1  # exponential decay to this fraction of the lr at the run's end (last step or budget)
     semantic_weight: float = 0.04  # weight of the cross-entropy term beside photometric MSE
-    edge_colour_weight: float = 1.0  # photometric weight of pixels on a label edge (a 4-neighbour holds another class)
     # weight of mip-NeRF 360's distortion loss (weights gathered into surfaces, no fog; 0: off).
     # "auto": DISTORTION_AUTO_WEIGHT where the build measured the observed geometry (an input without
     # near/far or aabb) and at most DISTORTION_THIN_MAX of it is seen by fewer than 3 training views

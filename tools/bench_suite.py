@@ -61,8 +61,6 @@ VARIANTS: dict[str, dict] = {
     "fast-box": {"preset": "fast", "sampling": {"warp": "box"}},  # a forward-facing room in uniform cells
     "class-balance": {"train": {"class_balance": True}},
     "semantic-0.1": {"train": {"semantic_weight": 0.1}},
-    "edge-colour-0.25": {"train": {"edge_colour_weight": 0.25}},
-    "edge-colour-0": {"train": {"edge_colour_weight": 0.0}},
     "semantic-0.25": {"train": {"semantic_weight": 0.25}},
     "dense": {"preset": "dense"},
     "train-3000": {"train": {"steps": 3000}},  # up to 3000 training steps, still at most 150 s of training
@@ -138,7 +136,7 @@ NOTES: dict[str, str] = {
     "voxels-budget": "`--preset voxels` (one dense grid, no network) with the default build's training time (`train.time_budget` \"auto\")",
     "fast-box": "`--preset fast` with uniform cells over the box (`sampling.warp` box) where `auto` gives a forward-facing capture the forward warp (disparity steps)",
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
-    **{f"semantic-{w}": f"the cross-entropy weighing {w} beside the photometric error (`train.semantic_weight`; default 0.04): labels pull harder on geometry, so a thin object whose pixels blend it with the wall behind becomes more opaque" for w in ("0.1", "0.25")},
+    **{f"semantic-{w}": f"the cross-entropy weighing {w} beside the photometric error (`train.semantic_weight`; default 0.04): the labels pull harder on geometry, a candidate for thin objects whose pixels blend them with the wall behind" for w in ("0.1", "0.25")},
     "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
     "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128]): finer cells, half the finest cell's size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
 __all__ = ["photometric_mse", "semantic_cross_entropy", "semantic_focal_loss", "class_balance_weights", "total_variation",
@@ -132,18 +131,6 @@ def photometric_mse(rgb: torch.Tensor, target: torch.Tensor, weights: torch.Tens
     if weights is None:
         return torch.mean(squared)
     return torch.sum(weights[:, None] * squared) / squared.numel()
-
-
-def label_edges(labels: np.ndarray, ignore: int | None = None) -> np.ndarray:
-    """[H, W] bool: pixels one of whose 4-neighbours holds another label (ignored pixels never count)."""
-    lab = np.asarray(labels)
-    valid = np.ones(lab.shape, bool) if ignore is None else lab != ignore
-    edge = np.zeros(lab.shape, bool)
-    for a, b in ((np.s_[1:, :], np.s_[:-1, :]), (np.s_[:, 1:], np.s_[:, :-1])):
-        diff = (lab[a] != lab[b]) & valid[a] & valid[b]
-        edge[a] |= diff
-        edge[b] |= diff
-    return edge
 
 
 def total_variation(grid: torch.Tensor) -> torch.Tensor:

@@ -47,7 +47,6 @@ from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast
 from scenelabel.train.divergence import Diverged, DivergenceGuard
 from scenelabel.train.losses import (
     class_balance_weights,
-    label_edges,
     composite_target,
     depth_loss,
     free_space_loss,
@@ -140,7 +139,6 @@ class RayData:
     # [N] where training stops marching, at most t_max (sampling.depth_ray_end: a little past the measured
     # surface); None: t_max. The depth loss still places a ray's transparent rest at t_max
     t_stop: torch.Tensor | None = None
-    edge: torch.Tensor | None = None  # [N] bool: the pixel is on a label edge
 
     def __len__(self) -> int:
         return self.origins.shape[0]
@@ -156,7 +154,7 @@ def rays_for_views(
     nothing) of a view without alpha gets alpha 0: its colour target is the background, so the ray
     learns to stay transparent; a view's own alpha rules where it has one.
     """
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha", "edge")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha")}
     sensor = scene.sensor_depths
     for i in indices:
         origins, directions = rays_from_cameras(scene.cameras, i)
@@ -171,7 +169,6 @@ def rays_for_views(
         parts["rgb"].append(scene.images[i].reshape(-1, 3))
         label = scene.labels[i]
         parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
-        parts["edge"].append(np.zeros(n, bool) if label is None else label_edges(label, scene.ignore_index).reshape(-1))
         alpha = None if scene.image_alphas is None else scene.image_alphas[i]
         if alpha is None and label is not None:
             alpha = (label != FREE).astype(np.float32)
@@ -197,7 +194,6 @@ def rays_for_views(
         channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
         depth=None if sensor is None else torch.as_tensor(cat["depth"], dtype=torch.float32),
         alpha=None if np.all(cat["alpha"] == 1) else torch.as_tensor(cat["alpha"], dtype=torch.float32),
-        edge=torch.as_tensor(cat["edge"]),
     )
 
 
@@ -504,9 +500,6 @@ class Trainer:
         target_rgb = composite_target(r.rgb[idx], None if r.alpha is None else r.alpha[idx], background)
         if sc.grid_reopen > 0 and self.coarse is None and self.progress() < sc.grid_reopen_until:
             self._reopen_worst(out, target_rgb, idx, t_stop)
-        if tc.edge_colour_weight != 1.0:
-            edge_w = torch.where(r.edge[idx], tc.edge_colour_weight, 1.0).to(out.rgb.dtype)
-            colour_weights = edge_w if colour_weights is None else colour_weights * edge_w
         mse = photometric_mse(out.rgb, target_rgb, colour_weights)
         ce = self._semantic_loss(out.class_log_probs, r.channels[idx], label_weights)
         distortion = out.distortion.mean()
