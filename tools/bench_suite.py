@@ -69,6 +69,7 @@ VARIANTS: dict[str, dict] = {
     "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the default since docs/suite_grid.md
     "grid-from-training": {"sampling": {"grid_from_training": True}},  # the default of docs/suite_grid.md's run
     "planes-256": {"field": {"resolutions": [64, 256]}},
+    "planes-64-128-256": {"field": {"resolutions": [64, 128, 256]}},
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
@@ -139,6 +140,7 @@ NOTES: dict[str, str] = {
     **{f"semantic-{w}": f"the cross-entropy weighing {w} beside the photometric error (`train.semantic_weight`; default 0.04): the labels pull harder on geometry, a candidate for thin objects whose pixels blend them with the wall behind" for w in ("0.1", "0.25")},
     "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
     "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128]): finer cells, half the finest cell's size",
+    "planes-64-128-256": "tri-planes of 64, 128 and 256 cells a side (`field.resolutions` [64, 128, 256]; default [64, 128]): a third, finer level, half the finest cell's size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
