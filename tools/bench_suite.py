@@ -69,7 +69,8 @@ VARIANTS: dict[str, dict] = {
     "no-grid-from-training": {"sampling": {"grid_from_training": False}},  # the default since docs/suite_grid.md
     "grid-from-training": {"sampling": {"grid_from_training": True}},  # the default of docs/suite_grid.md's run
     "planes-256": {"field": {"resolutions": [64, 256]}},
-    "planes-64-128-256": {"field": {"resolutions": [64, 128, 256]}},
+    "planes-64-128-256": {"field": {"resolutions": [64, 128, 256]}},  # the default since code 8d7c844
+    "planes-64-128": {"field": {"resolutions": [64, 128]}},  # the default before it
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
     "distortion+random-bg": {"train": {"distortion_weight": 0.002, "background": "random"}},
@@ -139,8 +140,9 @@ NOTES: dict[str, str] = {
     "class-balance": "median-frequency class weights in the cross-entropy (`train.class_balance`): rare classes (lamps, pictures, chairs) weigh more",
     **{f"semantic-{w}": f"the cross-entropy weighing {w} beside the photometric error (`train.semantic_weight`; default 0.04): the labels pull harder on geometry, a candidate for thin objects whose pixels blend them with the wall behind" for w in ("0.1", "0.25")},
     "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
-    "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128]): finer cells, half the finest cell's size",
-    "planes-64-128-256": "tri-planes of 64, 128 and 256 cells a side (`field.resolutions` [64, 128, 256]; default [64, 128]): a third, finer level, half the finest cell's size",
+    "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128, 256]): the default without its middle level",
+    "planes-64-128-256": "tri-planes of 64, 128 and 256 cells a side (`field.resolutions` [64, 128, 256]), the default since code 8d7c844: a third, finer level, half the finest cell's size",
+    "planes-64-128": "tri-planes of 64 and 128 cells a side (`field.resolutions` [64, 128]; default [64, 128, 256]), the default before code 8d7c844: the finest cell twice the size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
     "grid-from-training": "the density grid also raised by each training step's samples (`sampling.grid_from_training` true)",
@@ -162,7 +164,7 @@ DEPTH_NOTES: dict[str, str] = {
     "phone-depth-1300": "the default preset with 1300 steps",
     "phone-depth-decay-0.95": "the density grid's remembered density decaying 0.95 per refresh (`sampling.grid_decay`; default \"auto\": 0.8 with sensor depth, 0.95 without)",
     "phone-depth-no-solid": "without the solid-interior term (`train.depth_solid_weight` 0)",
-    "phone-depth-planes-256": "tri-plane levels of 64 and 256 cells (`field.resolutions`; default 64 and 128)",
+    "phone-depth-planes-256": "tri-plane levels of 64 and 256 cells (`field.resolutions`; default 64, 128 and 256)",
     "phone-depth-distortion": "with the distortion term at 0.002 (`train.distortion_weight`; \"auto\" leaves it off where the bounds come from depth)",
     "phone-depth-distortion-0.01": "with the distortion term at 0.01",
     "phone-depth-solid-2": "the solid-interior layer 2 marching steps deep (`train.solid_depth_steps`; default 0.5)",
