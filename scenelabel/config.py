@@ -526,8 +526,8 @@ build time known before it starts; its other settings are the fast preset's."""
 # threshold) and what it costs (tools/bench.py's room loses its lamp's pole).
 # The colour sigmoid keeps a gradient (field.colour_live_logit 4): without it a random training seed
 # could kill colour channels in the first steps and leave half-transparent walls (docs/models.md,
-# docs/suite_phone_depth_live.md, docs/suite_colour_live_rooms.md). Tri-planes of 64, 128 and 256 cells: at the
-# median viewing distance a suite room's pixel spans a fraction of a 128-cell (docs/suite_planes.md)
+# docs/suite_phone_depth_live.md, docs/suite_colour_live_rooms.md). Tri-planes of 64, 128 and 256 cells: the
+# images resolve finer than a 128-cell (docs/models.md); measured in docs/suite_planes.md
 _FAST = {"field": {"colour_live_logit": 4.0, "resolutions": (64, 128, 256)}, "sampling": {"n_steps": 288}, "train": {"time_budget": AUTO}}
 
 PRESETS: dict[str, dict] = {

@@ -2,20 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
-
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "fit_time_plan.py"
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("fit_time_plan", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tool_modules import load_tool
 
 
 def _row(views: int, resolution: str, after: float, planned: bool = True) -> dict:
@@ -28,7 +18,7 @@ def _row(views: int, resolution: str, after: float, planned: bool = True) -> dic
 
 
 def test_fit_recovers_the_constants_and_covers_the_slowest_row(tmp_path):
-    tool = _tool()
+    tool = load_tool("fit_time_plan")
     # held out: 5 views of 160x120 (0.096 MP, 5 panels), 3 of 640x480 (0.9216 MP), 16 of 160x120 (8 panels)
     shapes = [(40, "160x120"), (24, "640x480"), (128, "160x120")]
     def after(views, res, extra=0.0):

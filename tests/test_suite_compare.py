@@ -2,18 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "suite_compare.py"
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("suite_compare", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tool_modules import load_tool
 
 
 def _row(scene: str, miou: float, build: float, setup: float | None, code: str) -> dict:
@@ -32,7 +23,7 @@ def test_compare_counts_rooms_that_came_out_the_same_and_their_setup(tmp_path):
     paths = [tmp_path / "before.json", tmp_path / "after.json"]
     for path, run in zip(paths, (before, after)):
         path.write_text(json.dumps(run))
-    text = "\n".join(_tool().compare(*paths, tmp_path / "out.md"))
+    text = "\n".join(load_tool("suite_compare").compare(*paths, tmp_path / "out.md"))
     # a: only timings and the code moved; held: its mIoU rose
     assert "Builds the same in every recorded figure but the timings: 1 of 2 (a)." in text
     assert "| held out | miou | 0.8 -> 0.85 | 0.8 -> 0.85 | 1 / 0 / 0 |" in text
@@ -44,4 +35,4 @@ def test_compare_leaves_setup_out_where_a_run_has_no_time_plan(tmp_path):
     paths = [tmp_path / "before.json", tmp_path / "after.json"]
     for path, setup in zip(paths, (None, 5.0)):
         path.write_text(json.dumps({"rows": [_row("a", 0.9, 100.0, setup, "x")]}))
-    assert not any("Seconds before training" in line for line in _tool().compare(*paths, tmp_path / "out.md"))
+    assert not any("Seconds before training" in line for line in load_tool("suite_compare").compare(*paths, tmp_path / "out.md"))
