@@ -227,9 +227,9 @@ def test_bad_kernel_inputs(call, match):
 
 @pytest.fixture(scope="module")
 def fields(toy_build):
-    """The toy field, baked at its default voxel size and at half of it."""
+    """The toy field, baked at its default spacing (its finest cell) and at half of it."""
     field = SemanticField.load(toy_build.out_dir)
-    return field, BakedField.from_field(field), BakedField.from_field(field, field.default_voxel_size() / 2)
+    return field, BakedField.from_field(field), BakedField.from_field(field, field.finest_cell() / 2)
 
 
 def test_baked_points_answer_as_the_field(fields):

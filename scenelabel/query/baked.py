@@ -13,8 +13,7 @@ memory reads per point and per ray sample instead of a network evaluation:
   class compositing, the same early stop).
 
 The trade: answers follow the field to within what trilinear interpolation at the lattice's
-spacing keeps (the default spacing is the field's ``default_voxel_size``, what the images
-resolve); tools/bench.py measures the agreement next to the speed. The maths (:func:`trilinear`,
+spacing keeps (the default spacing is the field's ``finest_cell``, the finest detail it holds); tools/bench.py measures the agreement next to the speed. The maths (:func:`trilinear`,
 :func:`composite_baked_rays`) is pure and takes numpy arrays; :class:`BakedField` holds the
 lattice. Both are safe to call from several threads at once (nothing is modified).
 """
@@ -259,8 +258,8 @@ class BakedField:
         Args:
             field: a box-warped field (room and object captures; a forward-facing capture's
                 disparity-marched field is refused: its rays are not marched in equal steps).
-            voxel_size: vertex spacing, world units (default: ``field.default_voxel_size()``,
-                what the training images resolve).
+            voxel_size: vertex spacing, world units (default: ``field.finest_cell()``, the
+                finest detail the field holds).
         Raises:
             InputError: a forward-facing field, a non-positive voxel size, or a lattice larger
                 than MAX_BAKE_BYTES.
@@ -271,7 +270,7 @@ class BakedField:
                 "query the SemanticField itself",
                 field="field",
             )
-        voxel_size = field.default_voxel_size() if voxel_size is None else float(voxel_size)
+        voxel_size = field.finest_cell() if voxel_size is None else float(voxel_size)
         if not (np.isfinite(voxel_size) and voxel_size > 0):
             raise InputError(f"voxel_size must be a positive number, got {voxel_size}", field="voxel_size")
         lo, hi = field.aabb

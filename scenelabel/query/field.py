@@ -369,8 +369,15 @@ class SemanticField:
     # ------------------------------------------------------------------ maps
     def default_voxel_size(self) -> float:
         """What the images can resolve: twice the median training pixel footprint at the median
-        camera-to-scene-centre distance, but no finer than the field's own finest cell."""
+        camera-to-scene-centre distance, but no finer than two of the field's finest cells
+        (:meth:`finest_cell`; older builds floored it at one)."""
         return float(self.meta["default_voxel_size"])
+
+    def finest_cell(self) -> float:
+        """World length of the encoding's finest cell along the modelled box's longest side: the
+        finest detail the field holds (a baked lattice's default spacing; a map reads a voxel
+        once per finest cell along each axis)."""
+        return float(self.meta["finest_cell"])
 
     def training_cameras(self) -> Cameras | None:
         """The training cameras (world frame, OpenCV axes) as the build stored them, or None for a

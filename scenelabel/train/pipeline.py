@@ -75,6 +75,11 @@ __all__ = [
 VOXEL_FOOTPRINT_PIXELS = 2.0
 """The default map voxel spans this many training pixels at the typical viewing distance."""
 
+VOXEL_FINEST_CELLS = 2.0
+"""... and at least this many of the field's finest cells: interpolated over cells of length h, the
+field's narrowest density bump is 2h wide, so a slab (``occupancy_delta``) thinner than that reads a
+surface as less opaque than it is (docs/models.md, the third tri-plane level)."""
+
 
 @dataclass
 class BuildResult:
@@ -123,11 +128,12 @@ def choose_views(scene: Scene, holdout: int) -> tuple[list[int], list[int], str]
 
 def default_voxel_size(scene: Scene, train: list[int], aabb: np.ndarray, finest_cell: float) -> float:
     """What the images can resolve: VOXEL_FOOTPRINT_PIXELS pixels at the median distance from the
-    training cameras to the scene centre, and never finer than the field's finest cell."""
+    training cameras to the scene centre, and never finer than VOXEL_FINEST_CELLS of the field's
+    finest cells (what the field can hold)."""
     cams = scene.cameras[train]
     dist = np.linalg.norm(cams.centres - 0.5 * (aabb[0] + aabb[1]), axis=-1)
     footprint = np.median(dist / np.sqrt(cams.fx * cams.fy))
-    return float(max(VOXEL_FOOTPRINT_PIXELS * footprint, finest_cell))
+    return float(max(VOXEL_FOOTPRINT_PIXELS * footprint, VOXEL_FINEST_CELLS * finest_cell))
 
 
 def _seed_everything(seed: int) -> None:
