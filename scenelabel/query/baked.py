@@ -13,7 +13,8 @@ memory reads per point and per ray sample instead of a network evaluation:
   class compositing, the same early stop).
 
 The trade: answers follow the field to within what trilinear interpolation at the lattice's
-spacing keeps (the default spacing is the field's ``finest_cell``, the finest detail it holds); tools/bench.py measures the agreement next to the speed. The maths (:func:`trilinear`,
+spacing keeps (the default spacing is the field's ``finest_cell``, the finest detail it holds);
+tools/bench.py measures the agreement next to the speed. The maths (:func:`trilinear`,
 :func:`composite_baked_rays`) is pure and takes numpy arrays; :class:`BakedField` holds the
 lattice. Both are safe to call from several threads at once (nothing is modified).
 """
