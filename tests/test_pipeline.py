@@ -3,6 +3,7 @@
 import json
 import shutil
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_poi
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
 from scenelabel.render.sampling import cell_steps
 from scenelabel.train.choices import resolve_preset
-from scenelabel.train.pipeline import resume_config, split_views
+from scenelabel.train.pipeline import default_voxel_size, resume_config, split_views
 
 
 def test_every_eighth_view_held_out():
@@ -37,6 +38,17 @@ def test_too_few_views():
         split_views(1, 8)
     with pytest.raises(InputError, match="no training view"):
         split_views(2, 1)
+
+
+def test_default_voxel_is_two_pixel_footprints_never_under_two_finest_cells():
+    """docs/conventions.md, "Density and occupancy": the slab and the map's voxel are two pixel
+    footprints at the median distance from the training cameras to the box's centre, floored at
+    two of the field's finest cells (the narrowest density bump it holds)."""
+    aabb = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    c2w = opengl_to_opencv(np.stack([look_at(eye, [0.0, 0.0, 0.0]) for eye in ([0.0, -4.0, 0.0], [4.0, 0.0, 0.0])]))
+    scene = SimpleNamespace(cameras=Cameras.create(c2w, 100.0, 100.0, 16.0, 12.0, 32, 24))  # a pixel: 4 m / 100
+    assert default_voxel_size(scene, [0, 1], aabb, 0.01) == pytest.approx(0.08)  # the images bind
+    assert default_voxel_size(scene, [0, 1], aabb, 0.05) == pytest.approx(0.10)  # the field's cell binds
 
 
 # ------------------------------------------------------------------ builds without labels, warps
