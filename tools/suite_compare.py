@@ -25,6 +25,9 @@ TIMINGS = {"build_seconds", "train_seconds", "steps_per_second", "render_seconds
 """Row entries that follow the clock or name the run (budget_anchor: where the clock took over), left out
 of the count of builds that came out the same."""
 
+TIMED = (("build_seconds", "Build time"), ("map_seconds", "`occupancy_map(0.05)` time"))
+"""Timings compared room by room, as after / before ratios."""
+
 SHOWN = ("miou", "psnr", "depth_rel_median", "surface_field", "surface_map", "fscore", "build_seconds")
 
 
@@ -97,14 +100,19 @@ def compare(before_path: Path, after_path: Path, out: Path) -> list[str]:
             chosen = [(b, a) for b, a in pairs if pick is None or b["tuning"] == pick]
             if chosen:
                 lines += [f"| {group} | {key} | " + " | ".join(_summary(chosen, key)) + " |" for key in AGGREGATES]
-        ratios = [a["build_seconds"] / b["build_seconds"] for b, a in pairs]
         same = [b["scene"] for b, a in pairs if all(b.get(k) == a.get(k) for k in (b.keys() | a.keys()) - TIMINGS)]
         lines += ["", f"Builds the same in every recorded figure but the timings: {len(same)} of {len(pairs)}"
                   + (f" ({', '.join(same)})." if same else ".")]
-        told = f"Build time after / before, same room: {_ratios(ratios)}"
-        if None not in speed.values():
-            told += f"; divided by the machines' speed ratio: {_ratios([r * speed['before'] / speed['after'] for r in ratios])}"
-        lines += ["", told + "."]
+        for key, what in TIMED:
+            timed = [(b[key], a[key]) for b, a in pairs if b.get(key) and a.get(key)]
+            if not timed:
+                continue
+            ratios = [y / x for x, y in timed]
+            told = (f"{what} after / before, same room: {_ratios(ratios)} (before {min(x for x, _ in timed):.3g}-"
+                    f"{max(x for x, _ in timed):.3g} s, after {min(y for _, y in timed):.3g}-{max(y for _, y in timed):.3g} s)")
+            if None not in speed.values():
+                told += f"; divided by the machines' speed ratio: {_ratios([r * speed['before'] / speed['after'] for r in ratios])}"
+            lines += ["", told + "."]
         setups = [(_setup_seconds(b), _setup_seconds(a)) for b, a in pairs]
         if all(x is not None and y is not None for x, y in setups):
             cells = ", ".join(f"{b['scene']} {x:.1f} -> {y:.1f}" for (b, _), (x, y) in zip(pairs, setups))
