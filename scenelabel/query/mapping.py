@@ -206,8 +206,8 @@ def subsample_offsets(field: "SemanticField", voxel_size: float) -> np.ndarray:
     """[n³, 3] world offsets from a voxel's centre of its sub-samples: a regular n x n x n
     pattern, n = ceil(voxel_size / the field's finest cell) clipped to [1, MAX_SUBSAMPLES], so the
     field is read at least once per finest cell (one sample, the centre, when n = 1): a density
-    bump is two cells wide at its base, so some sub-sample lies within half a cell of its peak and
-    reads at least half of it."""
+    bump is two cells wide at its base, so along each axis some sub-sample lies within half a cell
+    of its peak and reads at least half of it."""
     n_sub = int(np.clip(np.ceil(voxel_size / field.finest_cell()), 1, MAX_SUBSAMPLES))
     offsets = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub - 0.5
     return offsets * voxel_size

@@ -76,9 +76,10 @@ VOXEL_FOOTPRINT_PIXELS = 2.0
 """The default map voxel spans this many training pixels at the typical viewing distance."""
 
 VOXEL_FINEST_CELLS = 2.0
-"""... and at least this many of the field's finest cells: interpolated over cells of length h, the
-field's narrowest density bump is 2h wide, so a slab (``occupancy_delta``) thinner than that reads a
-surface as less opaque than it is (docs/models.md, the third tri-plane level)."""
+"""The default map voxel, also the slab of a point's occupancy (``occupancy_delta``), spans at least
+this many of the field's finest cells: interpolated over cells of length h, the field's narrowest
+density bump is 2h wide, and a thinner slab reads a surface as less opaque than it is
+(docs/models.md, the third tri-plane level)."""
 
 
 @dataclass
