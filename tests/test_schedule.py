@@ -93,6 +93,30 @@ def test_the_rate_judged_is_the_last_window_s():
     assert anchored_at is None and elapsed < budget  # ... and was judged so
 
 
+def test_a_run_whose_steps_keep_speeding_up_is_not_found_short(monkeypatch):
+    """A default build's pattern: its steps speed up all through the run (the density grid empties),
+    so the rate at JUDGE_FROM projects a run longer than the budget (by less than SHORT_BY), and the
+    run still ends on its steps inside the budget."""
+    from scenelabel.train import schedule as schedule_module
+
+    steps, budget = 2000, 150.0
+    speeding_up = lambda i: 0.1 - 0.06 * i / steps  # noqa: E731  0.1 s a step down to 0.04 s: 140 s in all
+    fractions, anchored_at, elapsed = _run(RunSchedule(), speeding_up, steps, budget)
+    assert anchored_at is None and elapsed < budget
+    np.testing.assert_array_equal(fractions, np.arange(1, steps + 1) / steps)
+    monkeypatch.setattr(schedule_module, "SHORT_BY", 1.0)  # judged on the rate alone, it was found short
+    assert _run(RunSchedule(), speeding_up, steps, budget)[1] is not None
+
+
+def test_a_steady_run_a_little_over_its_budget_is_found_short_later_and_still_ends_its_schedules():
+    steps, budget = 2000, 100.0
+    schedule = RunSchedule()
+    fractions, anchored_at, _ = _run(schedule, lambda i: 1.2 * budget / steps, steps, budget)  # needs 1.2 x the budget
+    assert anchored_at is not None
+    assert schedule.anchor[1] == pytest.approx(0.6 * budget, abs=0.2)  # (1.2 B - t) > SHORT_BY (B - t) from t = 0.6 B
+    assert fractions[-1] == pytest.approx(1.0, abs=3e-3)
+
+
 def test_no_budget_never_anchors():
     schedule = RunSchedule()
     fractions, anchored_at, _ = _run(schedule, lambda i: 100.0, 50, None)
