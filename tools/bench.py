@@ -164,7 +164,8 @@ def _time_baked(field, inputs, field_answers, truth) -> list[dict]:
             t0 = time.perf_counter()
             baked_rays = baked.query_rays(ray_origins, ray_dirs)
             ray_times.append(time.perf_counter() - t0)
-        depth_gap = np.abs(baked_rays.depth - field_rays.depth)[(baked_rays.label >= 0) & (field_rays.label >= 0)]
+        both_hit = (baked_rays.label >= 0) & (field_rays.label >= 0)  # (a ray without a hit has depth inf)
+        depth_gap = np.abs(baked_rays.depth[both_hit] - field_rays.depth[both_hit])
         out.append({
             "voxel_size": baked.voxel_size,
             "vertices": int(baked.density.size),
