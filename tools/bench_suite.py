@@ -143,7 +143,7 @@ NOTES: dict[str, str] = {
     "train-3000": "up to 3000 training steps (`train.steps` 3000; \"auto\" gives 2000), still at most 150 s of training (`train.time_budget` \"auto\" without depth)",
     "planes-256": "tri-planes of 64 and 256 cells a side (`field.resolutions` [64, 256]; default [64, 128, 256]): the default without its middle level",
     "planes-64-128-256": "tri-planes of 64, 128 and 256 cells a side (`field.resolutions` [64, 128, 256]), the default since code 8d7c844: a third, finer level, half the finest cell's size",
-    "planes-512": "tri-planes of 64, 128, 256 and 512 cells a side (`field.resolutions`; default [64, 128, 256]): a fourth level, about one pixel's footprint at the median viewing distance of a 160x120 suite room",
+    "planes-512": "tri-planes of 64, 128, 256 and 512 cells a side (`field.resolutions`; default [64, 128, 256]): a fourth, finer level, half the finest cell's size",
     "planes-64-128": "tri-planes of 64 and 128 cells a side (`field.resolutions` [64, 128]; default [64, 128, 256]), the default before code 8d7c844: the finest cell twice the size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
