@@ -91,6 +91,9 @@ class FieldConfig:
     encoding: str = "triplane"  # triplane | dense | positional (NeRF's frequency encoding)
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
     channels: int = 8  # features per plane / voxel
+    # tri-plane cells: square: each level's planes r x r vertices over the box, cells stretched with its sides |
+    # cubic: planes shaped by the box, cubic cells, the features of r x r planes (fields.encodings.cubic_plane_vertices)
+    plane_cells: str = "square"
     grid_resolution: int = 96  # dense grid: cells along the cube's longest side (the others in proportion: fields.model.dense_grid_shape)
     pe_frequencies: int = 10  # positional encoding of points: frequencies 2^0..2^(n-1)
     # mlp: networks read the encoding | direct: no network, a dense grid's channels are σ, rgb and
@@ -115,6 +118,7 @@ class FieldConfig:
         _check_choice("field.encoding", self.encoding, ("triplane", "dense", "positional"))
         _check_choice("field.view_encoding", self.view_encoding, ("sh", "positional"))
         _check_choice("field.head", self.head, ("mlp", "direct"))
+        _check_choice("field.plane_cells", self.plane_cells, ("square", "cubic"))
         if self.head == "direct" and self.encoding != "dense":
             raise ConfigError(f"field.head 'direct' reads a dense grid's channels: set field.encoding 'dense', not {self.encoding!r}")
         if self.head == "direct" and self.view_dependent:

@@ -9,6 +9,7 @@ from scenelabel.config import (
     AUTO_PRESET,
     PRESETS,
     DataConfig,
+    FieldConfig,
     config_from_dict,
     config_to_dict,
     preset,
@@ -180,6 +181,13 @@ def test_sampling_warp_choices():
     assert preset("fast").sampling.warp == "auto"
     with pytest.raises(ConfigError, match="choose one of"):
         preset("fast", {"sampling": {"warp": "ndc"}})
+
+
+def test_field_plane_cells_choices():
+    assert FieldConfig().plane_cells == "square"  # checkpoints saved before the key load as they were built
+    assert preset("quick", {"field": {"plane_cells": "cubic"}}).field.plane_cells == "cubic"
+    with pytest.raises(ConfigError, match="field.plane_cells.*choose one of"):
+        preset("fast", {"field": {"plane_cells": "round"}})
 
 
 def test_sampling_strategy_and_sample_counts():

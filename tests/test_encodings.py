@@ -1,5 +1,6 @@
 """scenelabel.fields.encodings: the dense grid's trilinear interpolation (compiled loops on the
-CPU, grid_sample elsewhere) against a float64 loop, its gradient against grid_sample's."""
+CPU, grid_sample elsewhere) against a float64 loop, its gradient against grid_sample's; the
+tri-plane's features (square and cubic cells) against a float64 bilinear loop."""
 
 import itertools
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from scenelabel.fields.encodings import DenseGrid, trilinear_from_grid
+from scenelabel.fields.encodings import PLANE_AXES, DenseGrid, TriPlane, cubic_plane_vertices, trilinear_from_grid
 from scenelabel.fields.model import dense_grid_shape
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp
 
@@ -83,3 +84,50 @@ def test_dense_grid_shape_follows_the_warp():
     assert dense_grid_shape(BoxWarp(torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1e-6]])), 8) == (9, 9, 2)
     fwd = ForwardWarp(np.zeros(3), np.eye(3), [0.5, 0.375], 1.0, 10.0)  # a 4:3 reference view
     assert dense_grid_shape(fwd, 256) == (257, 193, 129)  # disparity: half the longer image side
+
+
+def naive_bilinear(plane: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """float64 loop: plane [C, H, W], points (u along W, v along H) clamped onto [-1, 1]^2, vertex
+    (i, j) at -1 + 2 (i, j) / (W - 1, H - 1) -> [n, C]."""
+    plane = plane.astype(np.float64)
+    top = np.array([plane.shape[2], plane.shape[1]]) - 1
+    out = np.zeros((len(uv), plane.shape[0]))
+    for n, p in enumerate(uv.astype(np.float64)):
+        f = (np.clip(p, -1.0, 1.0) + 1.0) * 0.5 * top
+        i0 = np.minimum(np.floor(f).astype(int), np.maximum(top - 1, 0))
+        t = f - i0
+        for du, dv in itertools.product((0, 1), repeat=2):
+            w = (t[0] if du else 1.0 - t[0]) * (t[1] if dv else 1.0 - t[1])
+            if w:
+                out[n] += w * plane[:, i0[1] + dv, i0[0] + du]
+    return out
+
+
+@pytest.mark.parametrize("extent", [None, (3.0, 1.0, 0.5), (1.0, 1.0, 1.0)], ids=["square", "long-box", "cube"])
+def test_triplane_matches_a_float64_loop(extent):
+    """Features are the planes' bilinear reads, level by level and plane by plane (xy, xz, yz)."""
+    torch.manual_seed(4)
+    enc = TriPlane((5, 9), channels=3, extent=extent)
+    unit = _points(200, 5)
+    out = enc(unit).detach().numpy()
+    assert out.shape == (len(unit), enc.out_dim) == (len(unit), 3 * 3 * 2)
+    planes = [p.detach().numpy() for p in enc.planes]
+    if extent is None:  # one [3, C, r, r] tensor per level
+        planes = [level[k] for level in planes for k in range(3)]
+    expected = [naive_bilinear(plane, unit.numpy()[:, list(PLANE_AXES[k % 3])]) for k, plane in enumerate(planes)]
+    np.testing.assert_allclose(out, np.concatenate(expected, axis=1), atol=2e-6)
+
+
+def test_cubic_plane_vertices_make_cubic_cells_of_the_square_levels_features():
+    assert cubic_plane_vertices(256, (2.0, 2.0, 2.0)) == (256, 256, 256)  # a cube: the square level
+    for extent in [(12.0, 8.0, 5.2), (10.0, 1.0, 1.0), (1e-3, 2e-3, 5e-4), (1e4, 3e3, 2e3)]:
+        vertices = np.array(cubic_plane_vertices(128, extent))
+        cells = np.asarray(extent) / (vertices - 1)
+        np.testing.assert_allclose(cells, cells.mean(), rtol=0.02)  # one cell size on every axis
+        features = vertices[0] * vertices[1] + vertices[0] * vertices[2] + vertices[1] * vertices[2]
+        assert abs(features / (3 * 128**2) - 1) < 0.03  # the square level's number of features
+    thin = cubic_plane_vertices(64, (100.0, 100.0, 1e-6))  # a flat box keeps at least one cell
+    assert thin[2] == 2 and thin[0] == thin[1] > 64
+    for bad in [(1.0, 0.0, 1.0), (1.0, float("nan"), 1.0), (1.0, 1.0)]:
+        with pytest.raises(ValueError, match="three positive finite lengths"):
+            cubic_plane_vertices(64, bad)

@@ -14,6 +14,7 @@ from scenelabel.config import AUTO, DISTORTION_AUTO_WEIGHT, DISTORTION_THIN_MAX
 from scenelabel.data.io import load_scene
 from scenelabel.data.synthetic import look_at, toy_scene_geometry, write_scene
 from scenelabel.errors import InputError
+from scenelabel.fields.encodings import cubic_plane_vertices
 from scenelabel.geometry.cameras import Cameras, opengl_to_opencv
 from scenelabel.geometry.frame import SceneFrame, aabb_from_cameras, frustum_points, near_far_or_fallback
 from scenelabel.geometry.warps import BoxWarp, ForwardWarp, choose_warp, warp_from_dict
@@ -116,6 +117,24 @@ def test_build_with_labels_does_not_warn(small_toy, tmp_path):
         warnings.filterwarnings("error", message="no labels")
         result = build(small_toy, tmp_path / "out", _small_config(steps=20), progress=False)
     assert 0 not in result.field.classes and "miou" in result.metrics
+
+
+def test_cubic_plane_cells_build_saves_their_finest_cell_and_loads(small_toy, tmp_path):
+    """A build with tri-planes of cubic cells: the planes follow the box's sides, the checkpoint's
+    finest cell is the box's longest side over that axis's cells, and the saved field loads into
+    the same planes (its queries equal the trained field's)."""
+    config = _small_config(steps=20)
+    config.field.plane_cells = "cubic"
+    result = build(small_toy, tmp_path / "out", config, progress=False)
+    field = SemanticField.load(tmp_path / "out", device="cpu")
+    aabb = np.asarray(field.meta["aabb_world"])
+    sides = aabb[1] - aabb[0]
+    vertices = cubic_plane_vertices(max(config.field.resolutions), tuple(sides))
+    assert field.finest_cell() == pytest.approx(sides.max() / (vertices[int(np.argmax(sides))] - 1), rel=1e-4)
+    shapes = [tuple(p.shape[1:]) for p in field.model.encoding.planes][-3:]  # the finest level's xy, xz, yz planes
+    assert shapes == [(vertices[1], vertices[0]), (vertices[2], vertices[0]), (vertices[2], vertices[1])]
+    points = aabb[0] + np.random.default_rng(0).random((50, 3)) * sides
+    np.testing.assert_array_equal(field.query_points(points).label, result.field.query_points(points).label)
 
 
 def test_choose_warp_on_an_orbit(small_toy):

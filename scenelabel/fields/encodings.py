@@ -13,23 +13,55 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["TriPlane", "DenseGrid", "trilinear_from_grid", "Positional", "sh_directions"]
+__all__ = ["TriPlane", "cubic_plane_vertices", "DenseGrid", "trilinear_from_grid", "Positional", "sh_directions"]
 
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))
 """The tri-plane's planes: xy, xz, yz (grid_sample's (x, y) = (first, second) axis)."""
 
 
+def cubic_plane_vertices(resolution: int, extent: tuple[float, float, float]) -> tuple[int, int, int]:
+    """Vertices per axis of a tri-plane level whose cells are cubes: as many features as three
+    planes of ``resolution`` x ``resolution`` vertices, laid out over a box of sides ``extent``.
+
+    The cell's side s solves (ab + ac + bc) / s^2 = 3 (resolution - 1)^2 for the box's sides a, b, c
+    (a cube's: s = a / (resolution - 1), the square level's cell); each axis gets round(side / s)
+    cells, at least one. A box three times longer than wide then has cells of one size along each
+    axis, where square planes stretch theirs with the box's sides (coarser along the longest).
+    """
+    sides = np.asarray(extent, dtype=np.float64)
+    if sides.shape != (3,) or not np.all(np.isfinite(sides)) or not np.all(sides > 0):
+        raise ValueError(f"extent must be three positive finite lengths, got {extent!r}")
+    a, b, c = sides
+    cell = np.sqrt((a * b + a * c + b * c) / 3.0) / (resolution - 1)
+    return tuple(int(max(np.rint(side / cell), 1)) + 1 for side in sides)
+
+
 class TriPlane(nn.Module):
     """Multi-resolution tri-plane: bilinear features from three axis-aligned planes per level.
 
-    Features of all planes and levels are concatenated (3 * channels * len(resolutions)).
+    Features of all planes and levels are concatenated (3 * channels * len(resolutions)). Without
+    ``extent`` each level's planes are ``r`` x ``r`` vertices over the unit box (cells stretched
+    with the box's sides); with the box's sides as ``extent`` they are shaped by
+    :func:`cubic_plane_vertices` (cubic cells, the same number of features), stored as one
+    [channels, second axis, first axis] plane each.
     """
 
-    def __init__(self, resolutions: tuple[int, ...] = (64, 128), channels: int = 16, init_std: float = 0.1):
+    def __init__(
+        self,
+        resolutions: tuple[int, ...] = (64, 128),
+        channels: int = 16,
+        init_std: float = 0.1,
+        extent: tuple[float, float, float] | None = None,
+    ):
         super().__init__()
-        self.planes = nn.ParameterList(
-            nn.Parameter(init_std * torch.randn(3, channels, r, r)) for r in resolutions
-        )
+        self.square = extent is None
+        if self.square:
+            shapes = [(3, channels, r, r) for r in resolutions]
+            self.vertices = [(r, r, r) for r in resolutions]
+        else:
+            self.vertices = [cubic_plane_vertices(r, extent) for r in resolutions]
+            shapes = [(channels, v[j], v[i]) for v in self.vertices for i, j in PLANE_AXES]
+        self.planes = nn.ParameterList(nn.Parameter(init_std * torch.randn(shape)) for shape in shapes)
         self.out_dim = 3 * channels * len(resolutions)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -37,12 +69,17 @@ class TriPlane(nn.Module):
         n = x.shape[0]
         coords = torch.stack([x[:, list(axes)] for axes in PLANE_AXES])  # [3, n, 2]
         coords = coords[:, None]  # [3, 1, n, 2]
-        feats = [
-            F.grid_sample(planes, coords, mode="bilinear", padding_mode="border", align_corners=True)
-            for planes in self.planes
-        ]  # each [3, C, 1, n]
+        if self.square:
+            feats = [_bilinear(planes, coords) for planes in self.planes]  # each [3, C, 1, n]
+        else:
+            feats = [_bilinear(plane[None], coords[k % 3][None]) for k, plane in enumerate(self.planes)]  # [1, C, 1, n]
         # a transposed view, not copied: the linear layers read it as it is
         return torch.cat([f.reshape(f.shape[0] * f.shape[1], n) for f in feats]).T
+
+
+def _bilinear(planes: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    """planes [B, C, H, W] at coords [B, 1, n, 2] in [-1, 1] (x along W) -> [B, C, 1, n]."""
+    return F.grid_sample(planes, coords, mode="bilinear", padding_mode="border", align_corners=True)
 
 
 class _TrilinearCPU(torch.autograd.Function):

@@ -85,9 +85,11 @@ def dense_grid_shape(warp: nn.Module, resolution: int) -> tuple[int, int, int]:
 
 
 def build_encoding(config: FieldConfig, warp: nn.Module) -> nn.Module:
-    """The encoding ``config`` names; a dense grid is shaped by the warp (:func:`dense_grid_shape`)."""
+    """The encoding ``config`` names; a dense grid, and tri-planes of cubic cells, are shaped by the warp
+    (:func:`dense_grid_shape`, :func:`~scenelabel.fields.encodings.cubic_plane_vertices`)."""
     if config.encoding == "triplane":
-        return TriPlane(config.resolutions, config.channels)
+        extent = warp.cube_extent() if config.plane_cells == "cubic" else None
+        return TriPlane(config.resolutions, config.channels, extent=extent)
     if config.encoding == "dense":
         return DenseGrid(dense_grid_shape(warp, config.grid_resolution), config.channels)
     if config.encoding == "positional":

@@ -44,6 +44,7 @@ from scenelabel.data.layout_depth import DEPTH_SOURCE_KEY, LAYOUT_KEY, LAYOUT_SO
 from scenelabel.data.scene import SILHOUETTE_ALPHA, ClassMap, Scene
 from scenelabel.errors import CheckpointError, InputError, TrainingError, TrainingInterrupted
 from scenelabel.fields.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, save_checkpoint
+from scenelabel.fields.encodings import cubic_plane_vertices
 from scenelabel.fields.model import FieldNetwork
 from scenelabel.geometry.cameras import cameras_to_dict
 from scenelabel.geometry.coverage import shows_whole, thinly_seen_fraction, visual_hull_points
@@ -143,15 +144,18 @@ def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def _finest_cell(config: BuildConfig, aabb: np.ndarray) -> float:
-    """World length of the encoding's finest cell along the scene box's longest side."""
+def _finest_cell(config: BuildConfig, aabb: np.ndarray, cube_extent: tuple[float, float, float]) -> float:
+    """World length of the encoding's finest cell along the scene box's longest side (the warp's
+    cube sides ``cube_extent`` shape tri-planes of cubic cells)."""
     fc = config.field
-    res = {
-        "triplane": max(fc.resolutions),
-        "dense": fc.grid_resolution,
-        "positional": 2**fc.pe_frequencies,  # half a period of the highest frequency, in cells
+    cells = {
+        "triplane": max(fc.resolutions) - 1,
+        "dense": fc.grid_resolution - 1,
+        "positional": 2**fc.pe_frequencies - 1,  # half a period of the highest frequency, in cells
     }[fc.encoding]
-    return float((aabb[1] - aabb[0]).max() / (res - 1))
+    if fc.encoding == "triplane" and fc.plane_cells == "cubic":
+        cells = cubic_plane_vertices(max(fc.resolutions), cube_extent)[int(np.argmax(cube_extent))] - 1
+    return float((aabb[1] - aabb[0]).max() / cells)
 
 
 def _class_colors(scene: Scene) -> dict[int, list[int]]:
@@ -405,7 +409,7 @@ def prepare_training(
         aabb = broadcast_array(aabb, device)
     trainer, frame, aabb_n = _trainer(scene, train_idx, class_map, aabb, config, device, context)
     config = trainer.config  # with what the trainer resolved (sampling.grid_decay): the checkpoint saves it
-    finest = _finest_cell(config, aabb)
+    finest = _finest_cell(config, aabb, trainer.model.warp.cube_extent())
     # what the training views saw lies between their cameras and the points (a room's layout holds no
     # furniture: before a forward rig, the furniture nearer than the nearest floor in view); in the box,
     # between the points and the cameras clamped to it
