@@ -91,7 +91,9 @@ class FieldConfig:
     encoding: str = "triplane"  # triplane | dense | positional (NeRF's frequency encoding)
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
     channels: int = 8  # features per plane / voxel
-    plane_cells: str = "square"  # square: r x r planes over the box | cubic: fields.encodings.cubic_plane_vertices
+    # tri-plane cells: square: each level's planes r x r vertices over the box, cells stretched with its sides |
+    # cubic: planes shaped by the box, cubic cells, the features of r x r planes (fields.encodings.cubic_plane_vertices)
+    plane_cells: str = "square"
     grid_resolution: int = 96  # dense grid: cells along the cube's longest side (the others in proportion: fields.model.dense_grid_shape)
     pe_frequencies: int = 10  # positional encoding of points: frequencies 2^0..2^(n-1)
     # mlp: networks read the encoding | direct: no network, a dense grid's channels are σ, rgb and
@@ -425,7 +427,6 @@ class TrainConfig:
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
-    edge_rays: float = 0.0  # share of each batch drawn from pixels on a label boundary (render.sampling.draw_rays)
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
@@ -464,10 +465,9 @@ class TrainConfig:
             raise ConfigError(f"train.background must be 3 numbers in [0, 1], \"random\" or null, got {bg!r}")
         if not (isinstance(self.focal_gamma, (int, float)) and self.focal_gamma >= 0):
             raise ConfigError(f"train.focal_gamma must be a number >= 0, got {self.focal_gamma!r}")
-        for key in ("distortion_start", "edge_rays"):
-            share = getattr(self, key)
-            if isinstance(share, bool) or not (isinstance(share, (int, float)) and 0 <= share <= 1):
-                raise ConfigError(f"train.{key} must be a fraction in [0, 1], got {share!r}")
+        start = self.distortion_start
+        if isinstance(start, bool) or not (isinstance(start, (int, float)) and 0 <= start <= 1):
+            raise ConfigError(f"train.distortion_start must be a fraction in [0, 1], got {start!r}")
         steps = self.solid_depth_steps
         if isinstance(steps, bool) or not (isinstance(steps, (int, float)) and math.isfinite(steps) and steps > 0):
             raise ConfigError(f"train.solid_depth_steps must be a finite number > 0, got {steps!r}")

@@ -190,14 +190,6 @@ def test_field_plane_cells_choices():
         preset("fast", {"field": {"plane_cells": "round"}})
 
 
-def test_train_edge_rays_is_a_fraction():
-    assert preset("fast").train.edge_rays == 0.0
-    assert preset("quick", {"train": {"edge_rays": 0.25}}).train.edge_rays == 0.25
-    for bad in (-0.1, 1.5, True, "half", float("nan")):
-        with pytest.raises(ConfigError, match="train.edge_rays must be a fraction in"):
-            preset("fast", {"train": {"edge_rays": bad}})
-
-
 def test_sampling_strategy_and_sample_counts():
     paper = preset("paper").sampling
     assert (paper.strategy, paper.n_coarse, paper.n_fine) == ("hierarchical", 64, 128)  # NeRF's coarse 64 + fine 128

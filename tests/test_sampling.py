@@ -16,10 +16,8 @@ from scenelabel.render.sampling import (
     DensityGrid,
     cell_indices,
     class_balanced_rays,
-    draw_rays,
     free_cells_from_depth,
     importance_sample,
-    label_edges,
     march,
     march_disparity,
     march_uniform,
@@ -668,39 +666,3 @@ def test_class_balanced_rays_draw_each_labelling_class_alike():
     assert 0.45 < float((labels == 3).float().mean()) < 0.55
     assert set(drawn[labels == 3].tolist()) == set(range(1007, 1012))
     assert [len(t) for t in class_balanced_rays(grouped, 0, torch.Generator())] == [0, 0]
-
-
-def naive_label_edges(channels: np.ndarray) -> np.ndarray:
-    """Pixel by pixel: labelled, with a labelled 4-neighbour of another class."""
-    h, w = channels.shape
-    out = np.zeros((h, w), bool)
-    for y in range(h):
-        for x in range(w):
-            for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                v, u = y + dy, x + dx
-                if 0 <= v < h and 0 <= u < w and channels[y, x] >= 0 and channels[v, u] >= 0:
-                    out[y, x] |= channels[v, u] != channels[y, x]
-    return out
-
-
-def test_label_edges_mark_both_sides_of_each_boundary():
-    channels = np.array([[0, 0, 1, 1], [0, 0, 1, 1], [-1, 2, 2, 2]])
-    expected = np.array([[0, 1, 1, 0], [0, 1, 1, 1], [0, 1, 1, 1]], bool)  # an unlabelled pixel makes no edge
-    np.testing.assert_array_equal(label_edges(channels), expected)
-    rng = np.random.default_rng(0)
-    for shape in [(1, 1), (1, 7), (6, 1), (9, 11)]:
-        channels = rng.integers(-1, 3, shape)
-        np.testing.assert_array_equal(label_edges(channels), naive_label_edges(channels))
-    assert not label_edges(np.full((4, 5), -1)).any() and not label_edges(np.zeros((4, 5), int)).any()
-
-
-def test_draw_rays_takes_its_share_from_the_edge_pool():
-    pool, edge_pool = torch.arange(100), torch.tensor([3, 50, 97])
-    g = torch.Generator().manual_seed(0)
-    idx = draw_rays(pool, edge_pool, 64, 0.25, g)
-    assert idx.shape == (64,) and set(idx[-16:].tolist()) <= {3, 50, 97}  # round(0.25 * 64) edge rays, last
-    assert ((idx[:48] >= 0) & (idx[:48] < 100)).all()
-    plain = torch.randint(100, (64,), generator=torch.Generator().manual_seed(0))  # share 0 or no edges: the
-    for edges, share in [(edge_pool, 0.0), (None, 0.5), (torch.zeros(0, dtype=torch.long), 0.5)]:  # uniform draw
-        np.testing.assert_array_equal(draw_rays(pool, edges, 64, share, torch.Generator().manual_seed(0)), plain)
-    assert set(draw_rays(pool, edge_pool, 10, 1.0, g).tolist()) <= {3, 50, 97}

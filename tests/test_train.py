@@ -9,13 +9,12 @@ import torch
 
 from scenelabel import SemanticField, TrainingError, build, load_scene, preset, write_toy_scene
 from scenelabel.codes import FREE
-from scenelabel.data.scene import ClassMap
 from scenelabel.errors import ConfigError
 from scenelabel.fields.checkpoint import load_checkpoint
 from scenelabel.geometry.frame import aabb_from_cameras, aabb_from_points, observed_extent
 from scenelabel.geometry.rays import rays_from_cameras
 from scenelabel.render.marcher import CompositeOptions
-from scenelabel.render.sampling import CARVE_MARGIN, label_edges
+from scenelabel.render.sampling import CARVE_MARGIN
 from scenelabel.train.losses import DEPTH_HUBER, total_variation
 from scenelabel.train.pipeline import prepare_training
 from scenelabel.train.trainer import backgrounds_for_rays, free_space_limit
@@ -228,23 +227,6 @@ def test_distortion_starts_at_its_fraction_of_the_run(scene):
     without = [log["loss"] - (log["mse"] + config.train.semantic_weight * log["ce"]) for log in logs]
     assert max(abs(x) for x in without[:20]) < 1e-6
     assert all(x > 0 for x in without[20:])
-
-
-def test_edge_rays_are_the_label_boundaries_of_the_training_views(scene):
-    """train.edge_rays: the trainer's edge pool is every training ray on a label boundary of its view
-    (render.sampling.label_edges of the view's label channels), and training on them stays finite."""
-    config = preset("quick", {"train": {"steps": 20, "edge_rays": 0.5}})
-    loaded = load_scene(scene)
-    trainer, static, _ = prepare_training(loaded, config, torch.device("cpu"))
-    assert trainer.rays.edge is not None and 0 < len(trainer.edge_pool) < len(trainer.ray_pool)
-    class_map = ClassMap.from_dict(static["class_map"])
-    views = [loaded.names.index(name) for name in static["train_views"]]
-    expected = np.concatenate([label_edges(class_map.channels_from_ids(loaded.labels[i])).reshape(-1) for i in views])
-    edge = trainer.rays.edge.numpy()
-    np.testing.assert_array_equal(edge, expected)
-    assert set(trainer.edge_pool.tolist()) == set(np.flatnonzero(edge)) & set(trainer.ray_pool.tolist())
-    logs = [trainer.train_step() for _ in range(20)]
-    assert all(np.isfinite(log["loss"]) for log in logs)
 
 
 def test_total_variation_smooths_a_dense_grid(scene):

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -29,8 +28,6 @@ __all__ = [
     "DensityGrid",
     "rays_by_class",
     "class_balanced_rays",
-    "label_edges",
-    "draw_rays",
 ]
 
 
@@ -603,32 +600,3 @@ def class_balanced_rays(
     within = (torch.rand(n, generator=generator).to(rays.device) * count).long().clamp_(max=count - 1)
     share = count.double() / spans[:, 1].sum().to(rays.device)
     return rays[start + within], (len(spans) * share).float()
-
-
-def label_edges(channels: np.ndarray) -> np.ndarray:
-    """[H, W] bool: the labelled pixels of a label image ``channels`` [H, W] (-1: unlabelled) with a
-    4-neighbour labelled with another class: the pixels on both sides of every label boundary."""
-    labelled = channels >= 0
-    edge = np.zeros(channels.shape, dtype=bool)
-    for axis in (0, 1):
-        lo = [slice(None)] * 2
-        hi = [slice(None)] * 2
-        lo[axis], hi[axis] = slice(None, -1), slice(1, None)
-        lo, hi = tuple(lo), tuple(hi)
-        differ = (channels[lo] != channels[hi]) & labelled[lo] & labelled[hi]
-        edge[lo] |= differ
-        edge[hi] |= differ
-    return edge
-
-
-def draw_rays(pool: torch.Tensor, edge_pool: torch.Tensor | None, n: int, edge_share: float, generator: torch.Generator) -> torch.Tensor:
-    """[n] ray indices: ``round(edge_share * n)`` drawn uniformly from ``edge_pool`` (the label-edge
-    rays, :func:`label_edges`; none when it is None or empty), the rest uniformly from ``pool``. Not
-    reweighted: boundaries get that many more labels to learn from (``train.edge_rays``)."""
-    n_edge = 0 if edge_pool is None or len(edge_pool) == 0 else round(edge_share * n)
-    pick = torch.randint(len(pool), (n - n_edge,), generator=generator)
-    idx = pool[pick.to(pool.device)]
-    if n_edge == 0:
-        return idx
-    extra = torch.randint(len(edge_pool), (n_edge,), generator=generator)
-    return torch.cat([idx, edge_pool[extra.to(edge_pool.device)]])

@@ -42,7 +42,7 @@ from scenelabel.render.marcher import (
     render_rays,
     render_rays_hierarchical,
 )
-from scenelabel.render.sampling import DensityGrid, class_balanced_rays, draw_rays, label_edges, rays_by_class
+from scenelabel.render.sampling import DensityGrid, class_balanced_rays, rays_by_class
 from scenelabel.train.distributed import DistContext, all_reduce_mean, broadcast_module_buffers
 from scenelabel.train.divergence import Diverged, DivergenceGuard
 from scenelabel.train.losses import (
@@ -136,10 +136,9 @@ class RayData:
     channels: torch.Tensor  # [N] int64 class channel, -1 = no label
     depth: torch.Tensor | None = None  # [N] measured distance along the ray (sensor depth), NaN = none; None: no view has one
     alpha: torch.Tensor | None = None  # [N] pixel alpha in [0, 1] (Scene.image_alphas; rgb is composited on the background); None: opaque
-    # [N] where training stops marching, at most t_max (sampling.depth_ray_end: past the measured surface); None:
-    # t_max. The depth loss still places a ray's transparent rest at t_max
+    # [N] where training stops marching, at most t_max (sampling.depth_ray_end: a little past the measured
+    # surface); None: t_max. The depth loss still places a ray's transparent rest at t_max
     t_stop: torch.Tensor | None = None
-    edge: torch.Tensor | None = None  # [N] bool: on a label boundary (render.sampling.label_edges); None: no labels
 
     def __len__(self) -> int:
         return self.origins.shape[0]
@@ -150,12 +149,12 @@ def rays_for_views(
 ) -> RayData:
     """Every pixel ray of views ``indices``, with targets, clipped to the scene box and near/far.
 
-    Pixels a view's mask excludes (``scene.masks``) give no ray; sensor depths (``scene.sensor_depths``)
-    become ``depth`` in the normalised frame; ``edge``: label boundaries. A FREE pixel (its ray meets
+    Pixels a view's mask excludes (``scene.masks``) give no ray; sensor depths
+    (``scene.sensor_depths``) become ``depth`` in the normalised frame. A FREE pixel (its ray meets
     nothing) of a view without alpha gets alpha 0: its colour target is the background, so the ray
     learns to stay transparent; a view's own alpha rules where it has one.
     """
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha", "edge")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("o", "d", "near", "far", "rgb", "ch", "depth", "alpha")}
     sensor = scene.sensor_depths
     for i in indices:
         origins, directions = rays_from_cameras(scene.cameras, i)
@@ -169,9 +168,7 @@ def rays_for_views(
         parts["far"].append(np.full(n, far * frame.scale if np.isfinite(far) else np.inf))
         parts["rgb"].append(scene.images[i].reshape(-1, 3))
         label = scene.labels[i]
-        channels = np.full(scene.images[i].shape[:2], -1) if label is None else class_map.channels_from_ids(label)
-        parts["ch"].append(channels.reshape(-1))
-        parts["edge"].append(label_edges(channels).reshape(-1))
+        parts["ch"].append(np.full(n, -1) if label is None else class_map.channels_from_ids(label.reshape(-1)))
         alpha = None if scene.image_alphas is None else scene.image_alphas[i]
         if alpha is None and label is not None:
             alpha = (label != FREE).astype(np.float32)
@@ -197,7 +194,6 @@ def rays_for_views(
         channels=torch.as_tensor(cat["ch"], dtype=torch.int64),
         depth=None if sensor is None else torch.as_tensor(cat["depth"], dtype=torch.float32),
         alpha=None if np.all(cat["alpha"] == 1) else torch.as_tensor(cat["alpha"], dtype=torch.float32),
-        edge=torch.as_tensor(cat["edge"]) if cat["edge"].any() else None,
     )
 
 
@@ -308,7 +304,6 @@ class Trainer:
         self.ray_pool = torch.nonzero(self.rays.t_max > self.rays.t_min).squeeze(1)
         if len(self.ray_pool) == 0:
             raise TrainingError("no training ray enters the scene bounds: check the poses and bounds")
-        self.edge_pool = None if self.rays.edge is None else self.ray_pool[self.rays.edge[self.ray_pool]]  # train.edge_rays
         self.marching = Marching.across_box(model.aabb, sc.n_steps)
         self.render = TrainingRender(
             self.model, self.grid, self.marching, self.coarse, (sc.n_coarse, sc.n_fine), sc.train_min_trans
@@ -332,7 +327,9 @@ class Trainer:
             fused=fused,
         )
         self.base_lrs = [tc.lr_encoding, tc.lr_mlp]
-        self.class_weights = class_balance_weights(self.rays.channels, model.num_classes) if tc.class_balance else None
+        self.class_weights = (
+            class_balance_weights(self.rays.channels, model.num_classes) if tc.class_balance else None
+        )
         self.background = None if tc.background in (None, RANDOM_BACKGROUND) else torch.tensor(tc.background, device=device)
         # the grid's random cells: the same stream on every rank; the rays: one stream per rank
         self.generator = torch.Generator(device="cpu").manual_seed(tc.seed)
@@ -461,7 +458,8 @@ class Trainer:
             self.grid.update(self.model.density, sc.grid_decay, all_cells=all_cells, generator=self.generator)
             broadcast_module_buffers(self.grid)  # identical already; rank 0's copy makes it certain
         self._set_lr()
-        idx = draw_rays(self.ray_pool, self.edge_pool, self.batch_rays, tc.edge_rays, self.ray_generator)
+        pick = torch.randint(len(self.ray_pool), (self.batch_rays,), generator=self.ray_generator)
+        idx = self.ray_pool[pick.to(self.device)]
         open_rays = colour_weights = label_weights = None
         if self.rays_by_class is not None and self.coarse is None and self.progress() < sc.grid_open_until:
             extra, share_weights = class_balanced_rays(self.rays_by_class, sc.grid_open_rays, self.ray_generator)
@@ -627,7 +625,8 @@ class Trainer:
                     bar.write(f"step {self.state.step}: the time budget will end the run before step {tc.steps}; "
                               "the schedules follow the clock to its end")
                 if self.state.step % tc.log_every == 0 or self.state.step == tc.steps:
-                    logs.update(time=self.state.elapsed, threads=torch.get_num_threads())
+                    logs["time"] = self.state.elapsed
+                    logs["threads"] = torch.get_num_threads()
                     self.state.history.append(logs)
                     bar.set_postfix(loss=f"{logs['loss']:.4f}", psnr=f"{logs['psnr']:.1f}", spr=f"{logs['samples_per_ray']:.0f}")
                 bar.update(1)
