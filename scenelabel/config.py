@@ -91,9 +91,7 @@ class FieldConfig:
     encoding: str = "triplane"  # triplane | dense | positional (NeRF's frequency encoding)
     resolutions: tuple[int, ...] = (64, 128)  # tri-plane levels (plane side, cells)
     channels: int = 8  # features per plane / voxel
-    # tri-plane cells: square: each level's planes r x r vertices over the box, cells stretched with its sides |
-    # cubic: planes shaped by the box, cubic cells, the features of r x r planes (fields.encodings.cubic_plane_vertices)
-    plane_cells: str = "square"
+    plane_cells: str = "square"  # square: r x r planes over the box | cubic: fields.encodings.cubic_plane_vertices
     grid_resolution: int = 96  # dense grid: cells along the cube's longest side (the others in proportion: fields.model.dense_grid_shape)
     pe_frequencies: int = 10  # positional encoding of points: frequencies 2^0..2^(n-1)
     # mlp: networks read the encoding | direct: no network, a dense grid's channels are σ, rgb and
@@ -427,6 +425,7 @@ class TrainConfig:
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
+    pixel_jitter: bool = False  # each training ray through a random point of its pixel (train.rays.jittered_rays)
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
@@ -456,6 +455,8 @@ class TrainConfig:
         ):
             raise ConfigError(f"train.time_budget must be a number of seconds > 0, \"auto\" or null, got {budget!r}")
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
+        if not isinstance(self.pixel_jitter, bool):
+            raise ConfigError(f"train.pixel_jitter must be true or false, got {self.pixel_jitter!r}")
         bg = self.background
         if isinstance(bg, str):
             _check_choice("train.background", bg, (RANDOM_BACKGROUND,))
