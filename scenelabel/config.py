@@ -425,7 +425,6 @@ class TrainConfig:
     # slab of TV_SLAB vertex rows each step (0: off; only field.encoding "dense")
     tv_weight: float = 0.0
     class_balance: bool = False  # median-frequency class weights in the cross-entropy (training views only)
-    pixel_jitter: bool = False  # each training ray through a random point of its pixel (train.rays.jittered_rays)
     semantic_loss: str = "ce"  # ce: cross-entropy | focal: focal loss (Lin et al. 2017) with focal_gamma
     focal_gamma: float = 2.0  # focusing parameter of the focal loss (0: cross-entropy)
     detach_semantic_weights: bool = False  # the semantic loss does not move geometry (weights detached)
@@ -455,8 +454,6 @@ class TrainConfig:
         ):
             raise ConfigError(f"train.time_budget must be a number of seconds > 0, \"auto\" or null, got {budget!r}")
         _check_choice("train.semantic_loss", self.semantic_loss, ("ce", "focal"))
-        if not isinstance(self.pixel_jitter, bool):
-            raise ConfigError(f"train.pixel_jitter must be true or false, got {self.pixel_jitter!r}")
         bg = self.background
         if isinstance(bg, str):
             _check_choice("train.background", bg, (RANDOM_BACKGROUND,))

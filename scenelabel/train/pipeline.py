@@ -229,7 +229,7 @@ def _trainer(
     coarse = FieldNetwork(config.field, class_map.num_classes, aabb_n, warp) if hierarchical else None
     sc = config.sampling
     grid = DensityGrid.for_march(warp, aabb_n, sc.grid_resolution, sc.n_steps, sc.alpha_threshold)
-    rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n, footprint=config.train.pixel_jitter)
+    rays = rays_for_views(scene, train_idx, frame, class_map, aabb_n)
     if rays.depth is not None and sc.depth_carve and config.train.depth_weight > 0 and warp.spacing == "uniform":
         cell = float((aabb_n[1] - aabb_n[0]).min()) / sc.grid_resolution
         generator = torch.Generator().manual_seed(config.train.seed)  # every data-parallel rank carves alike

@@ -51,7 +51,7 @@ from scenelabel.train.losses import (
     solid_interior_loss,
     total_variation_grad,
 )
-from scenelabel.train.rays import RayData, jittered_rays
+from scenelabel.train.rays import RayData
 from scenelabel.train.schedule import RunSchedule
 
 __all__ = ["Trainer", "TrainState"]
@@ -411,15 +411,8 @@ class Trainer:
             background = backgrounds_for_rays(background, torch.isfinite(target_depth), colours)
         free_until = None if target_depth is None else free_space_limit(target_depth, self.marching.step, self.free_margin)
         t_stop = r.t_max[idx] if r.t_stop is None else r.t_stop[idx]
-        origins, directions, t_min = r.origins[idx], r.directions[idx], r.t_min[idx]
-        if r.pixel_dx is not None:  # train.pixel_jitter: each ray through a random point of its pixel
-            offsets = torch.rand(n_rays, 2, generator=self.ray_generator).to(self.device) - 0.5
-            directions, t_enter, t_exit = jittered_rays(
-                origins, directions, r.pixel_dx[idx], r.pixel_dy[idx], offsets, self.model.aabb
-            )
-            t_min, t_stop = torch.maximum(t_min, t_enter), torch.minimum(t_stop, t_exit)
         out, coarse_out, solid_sigmas = self.render(
-            origins, directions, t_min, t_stop, jitter, fine_jitter,
+            r.origins[idx], r.directions[idx], r.t_min[idx], t_stop, jitter, fine_jitter,
             CompositeOptions(background, True, tc.detach_semantic_weights, free_until,
                              open_rays if sc.grid_open_labels == "geometry" else None), solid_offsets=solid_offsets,
             open_rays=open_rays,
