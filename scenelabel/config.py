@@ -57,11 +57,13 @@ class DataConfig:
     # consecutive frames, blurred ones dropped), and at most this many frames in all
     video_frames_per_second: float = 3.0
     video_max_frames: int = 150
-    # without sensor depth: the floor, wall and ceiling pixels of the training views get the depth of
-    # the room's layout, found where their masks meet (scenelabel.data.layout_depth), and the build
-    # trains on it as on sensor depth; with sensor depth, the layout fills the sensor's holes on
-    # those pixels (a far wall beyond a phone's range). Only where the classes name a floor and walls
+    # without sensor depth: the floor, wall and ceiling pixels of the training views get the depth of the room's
+    # layout, found where their masks meet (scenelabel.data.layout_depth), and the build trains on it as on sensor
+    # depth; with sensor depth, the layout fills the sensor's holes on those pixels (a far wall beyond a phone's
+    # range). Only where the classes name a floor and walls. layout_mounted: so do the pixels of classes that hang
+    # flat on walls (geometry.layout.WALL_MOUNTED_CLASSES: pictures, posters, mirrors), the wall's depth behind them
     layout_depth: bool = True
+    layout_mounted: bool = False
     # where the input has no near/far or aabb, the bounds of the observed points (sensor depth, the
     # room's layout, or a coarse fit) are padded by this fraction of their longest side on every face
     bounds_pad: float = POINTS_PAD
@@ -77,8 +79,9 @@ class DataConfig:
         n = self.video_max_frames
         if isinstance(n, bool) or not isinstance(n, int) or n < 2:
             raise ConfigError(f"data.video_max_frames must be an integer >= 2, got {n!r}")
-        if not isinstance(self.layout_depth, bool):
-            raise ConfigError(f"data.layout_depth must be true or false, got {self.layout_depth!r}")
+        for key in ("layout_depth", "layout_mounted"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"data.{key} must be true or false, got {getattr(self, key)!r}")
         pad = self.bounds_pad
         if isinstance(pad, bool) or not (isinstance(pad, (int, float)) and 0 <= pad <= 1):
             raise ConfigError(f"data.bounds_pad must be a number in [0, 1], got {pad!r}")

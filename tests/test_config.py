@@ -190,6 +190,13 @@ def test_field_plane_cells_choices():
         preset("fast", {"field": {"plane_cells": "round"}})
 
 
+def test_data_layout_mounted_is_a_switch():
+    assert DataConfig().layout_mounted is False
+    assert preset("quick", {"data": {"layout_mounted": True}}).data.layout_mounted is True
+    with pytest.raises(ConfigError, match="data.layout_mounted must be true or false"):
+        DataConfig(layout_mounted="yes")
+
+
 def test_sampling_strategy_and_sample_counts():
     paper = preset("paper").sampling
     assert (paper.strategy, paper.n_coarse, paper.n_fine) == ("hierarchical", 64, 128)  # NeRF's coarse 64 + fine 128

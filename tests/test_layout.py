@@ -31,6 +31,7 @@ from scenelabel.geometry.layout import (
     better_layout,
     boundary_rays,
     layout_class_ids,
+    mounted_class_ids,
     plane_offset,
     room_layout,
 )
@@ -66,6 +67,13 @@ def test_layout_classes_are_matched_by_name():
     }
     assert layout_class_ids({1: "floor", 9: "floor mat"}) == {"floor": 1}  # the first id in ascending order
     assert layout_class_ids({0: "unlabelled"}) == {}
+
+
+def test_wall_mounted_classes_are_matched_by_name():
+    classes = {1: "floor", 2: "wall", 23: "picture", 24: "Picture Frame", 25: "painting, picture", 26: "door",
+               27: "pictures", 28: "whiteboard", 29: "mirror", 30: "window"}
+    assert mounted_class_ids(classes) == [23, 24, 25, 28, 29]
+    assert mounted_class_ids({1: "floor", 2: "wall"}) == []
 
 
 def test_boundary_rays_pass_through_the_pixel_edges_where_the_classes_meet():
@@ -338,6 +346,10 @@ def test_depth_from_layout_by_hand():
         assert np.isnan(depth_from_layout(layout, cams, 0, horizon, IDS)[1]).all()
     no_walls = dataclasses.replace(layout, walls=())
     assert np.isnan(depth_from_layout(no_walls, cams, 0, label, IDS)[1, 1])
+    hung = label.copy()
+    hung[1, 1] = 23  # a picture on the wall: the wall's depth with mounted classes, none without
+    assert depth_from_layout(layout, cams, 0, hung, IDS, mounted=(23,))[1, 1] == pytest.approx(4.0)
+    assert np.isnan(depth_from_layout(layout, cams, 0, hung, IDS)[1, 1])
 
 
 def test_with_sensor_depth_the_layout_fills_its_holes_on_floor_wall_and_ceiling_pixels(room):
@@ -383,6 +395,29 @@ def test_with_layout_depth_uses_the_training_views_alone(room):
     again = with_layout_depth(scrambled, train)[1]
     assert (again.floor, again.ceiling, again.walls) == (layout.floor, layout.ceiling, layout.walls)
     np.testing.assert_array_equal(again.up, layout.up)
+
+
+def test_pictures_get_the_depth_of_their_wall_when_asked(tmp_path):
+    """data.layout_mounted: a suite room's picture pixels get the depth of the wall behind them, the
+    picture's few centimetres of thickness beyond its face; without it they get none."""
+    from scenelabel.data.suite import suite_spec, write_suite_scene
+
+    studio = load_scene(write_suite_scene(tmp_path / "studio", suite_spec("studio-3x3")))
+    picture = mounted_class_ids(studio.classes)
+    train = [i for i in range(len(studio)) if i % 8]
+    plain, with_pictures = with_layout_depth(studio, train)[0], with_layout_depth(studio, train, mounted=True)[0]
+    gaps, shown = [], 0
+    for i in train:
+        on_wall = np.isin(studio.labels[i], picture)
+        shown += int(on_wall.sum())
+        assert not np.isfinite(plain.sensor_depths[i][on_wall]).any()
+        depth = with_pictures.sensor_depths[i][on_wall]
+        gaps.append(depth[np.isfinite(depth)] - studio.depths[i][on_wall][np.isfinite(depth)])
+        others = ~on_wall
+        np.testing.assert_array_equal(with_pictures.sensor_depths[i][others], plain.sensor_depths[i][others])
+    gaps = np.concatenate(gaps)
+    assert picture and shown > 0 and len(gaps) > 0.9 * shown
+    assert 0.0 <= np.median(gaps) < 0.05 and np.percentile(np.abs(gaps), 95) < 0.1
 
 
 def test_without_floor_and_walls_or_with_complete_sensor_depth_the_scene_is_unchanged(room, tmp_path):

@@ -6,14 +6,21 @@ and the build trains on it as it would on sensor depth (``data.layout_depth``, d
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy.ndimage import binary_erosion
 
 from scenelabel.data.scene import Scene
 from scenelabel.geometry.cameras import Cameras
-from scenelabel.geometry.layout import MIN_NEAR_WALLS, WALL_BAND, RoomLayout, layout_class_ids, room_layout
+from scenelabel.geometry.layout import (
+    MIN_NEAR_WALLS,
+    WALL_BAND,
+    RoomLayout,
+    layout_class_ids,
+    mounted_class_ids,
+    room_layout,
+)
 from scenelabel.geometry.rays import rays_from_cameras
 
 __all__ = [
@@ -56,18 +63,24 @@ def layout_summary(layout: RoomLayout) -> str:
 
 
 def depth_from_layout(
-    layout: RoomLayout, cameras: Cameras, index: int, label: np.ndarray, class_ids: Mapping[str, int]
+    layout: RoomLayout,
+    cameras: Cameras,
+    index: int,
+    label: np.ndarray,
+    class_ids: Mapping[str, int],
+    mounted: Sequence[int] = (),
 ) -> np.ndarray:
     """[H, W] distance along each pixel's unit ray to the layout plane of its class: the floor or
     ceiling plane for pixels labelled so, the nearest wall it meets within a wall's extent (and
-    between floor and ceiling) for wall pixels; NaN for other pixels and where no plane is met
-    in front of the camera.
+    between floor and ceiling) for wall pixels and those of the ``mounted`` classes; NaN for other
+    pixels and where no plane is met in front of the camera.
 
     Args:
         layout: the room's layout (:func:`~scenelabel.geometry.layout.room_layout`).
         cameras, index: the view's camera.
         label: [H, W] its class ids.
         class_ids: :func:`~scenelabel.geometry.layout.layout_class_ids`.
+        mounted: ids of classes that hang on walls (:func:`~scenelabel.geometry.layout.mounted_class_ids`).
     """
     label = np.asarray(label)
     origins, directions = rays_from_cameras(cameras, index)
@@ -81,7 +94,7 @@ def depth_from_layout(
                 t = (height - o_h[m]) / d_h[m]
             depth[m] = np.where(np.isfinite(t) & (t > 0), t, np.nan)
     if "wall" in class_ids and layout.walls:
-        m = np.nonzero(flat == class_ids["wall"])[0]
+        m = np.nonzero(np.isin(flat, [class_ids["wall"], *mounted]))[0]
         o2, d2 = origins[m] @ layout.basis.T, directions[m] @ layout.basis.T
         low = -np.inf if layout.floor is None else layout.floor - WALL_BAND
         high = np.inf if layout.ceiling is None else layout.ceiling + WALL_BAND
@@ -98,9 +111,10 @@ def depth_from_layout(
     return depth.reshape(label.shape)
 
 
-def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout | None]:
+def with_layout_depth(scene: Scene, train: list[int], mounted: bool = False) -> tuple[Scene, RoomLayout | None]:
     """``scene`` with the depth of its room layout, found from the masks of the ``train`` views
-    alone, on the floor, wall and ceiling pixels of those views (held-out views get none).
+    alone, on the floor, wall and ceiling pixels of those views (held-out views get none), and with
+    ``mounted`` on the pixels of classes that hang on walls (``data.layout_mounted``).
 
     Without sensor depth the layout's depth becomes ``sensor_depths`` (NaN on pixels of other
     classes), ``info[DEPTH_SOURCE_KEY]`` says so and ``info[LAYOUT_KEY]`` sums the layout up. With
@@ -124,13 +138,14 @@ def with_layout_depth(scene: Scene, train: list[int]) -> tuple[Scene, RoomLayout
     layout = room_layout(cameras, [scene.labels[i] for i in train], ids, [scene.images[i] for i in train])
     if layout is None or layout.near_walls < MIN_NEAR_WALLS:
         return scene, None
+    on_walls = mounted_class_ids(scene.classes) if mounted else []
     sensor = scene.sensor_depths
     depths: list[np.ndarray | None] = [None] * len(scene) if sensor is None else list(sensor)
     filled = covered = total = 0
     for n, i in enumerate(train):
         if scene.labels[i] is None:
             continue
-        depth = depth_from_layout(layout, cameras, n, scene.labels[i], ids).astype(np.float32)
+        depth = depth_from_layout(layout, cameras, n, scene.labels[i], ids, on_walls).astype(np.float32)
         total += depth.size
         if sensor is None:
             depths[i] = depth

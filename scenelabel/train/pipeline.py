@@ -548,7 +548,7 @@ def build(
     train_views = choose_views(scene, config.train.holdout)[0]
     layout, sensed = None, scene.sensor_depths is not None
     if config.data.layout_depth:  # the room's layout: the depth of a capture without, the holes of one with
-        scene, layout = with_layout_depth(scene, train_views)
+        scene, layout = with_layout_depth(scene, train_views, config.data.layout_mounted)
         if layout is not None and progress:
             print(f"layout: {scene.info.get(DEPTH_SOURCE_KEY, 'sensor depth')}: {scene.info[LAYOUT_KEY]}", file=sys.stderr)
     config, preset_choice = resolve_preset(config, scene.cameras[train_views], room=layout is not None)
