@@ -63,7 +63,7 @@ class DataConfig:
     # range). Only where the classes name a floor and walls. layout_mounted: so do the pixels of classes that hang
     # flat on walls (geometry.layout.WALL_MOUNTED_CLASSES: pictures, posters, mirrors), the wall's depth behind them
     layout_depth: bool = True
-    layout_mounted: bool = False
+    layout_mounted: bool = True
     # where the input has no near/far or aabb, the bounds of the observed points (sensor depth, the
     # room's layout, or a coarse fit) are padded by this fraction of their longest side on every face
     bounds_pad: float = POINTS_PAD

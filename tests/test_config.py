@@ -191,8 +191,8 @@ def test_field_plane_cells_choices():
 
 
 def test_data_layout_mounted_is_a_switch():
-    assert DataConfig().layout_mounted is False
-    assert preset("quick", {"data": {"layout_mounted": True}}).data.layout_mounted is True
+    assert DataConfig().layout_mounted is True and preset("fast").data.layout_mounted is True  # docs/suite_layout_mounted.md
+    assert preset("quick", {"data": {"layout_mounted": False}}).data.layout_mounted is False
     with pytest.raises(ConfigError, match="data.layout_mounted must be true or false"):
         DataConfig(layout_mounted="yes")
 

@@ -72,7 +72,8 @@ VARIANTS: dict[str, dict] = {
     "planes-64-128-256": {"field": {"resolutions": [64, 128, 256]}},  # the default since code 8d7c844
     "planes-512": {"field": {"resolutions": [64, 128, 256, 512]}},
     "planes-cubic": {"field": {"plane_cells": "cubic"}},
-    "layout-mounted": {"data": {"layout_mounted": True}},
+    "layout-mounted": {"data": {"layout_mounted": True}},  # the default since it was measured
+    "no-layout-mounted": {"data": {"layout_mounted": False}},  # the default before
     "planes-64-128": {"field": {"resolutions": [64, 128]}},  # the default before it
     "grid-128": {"sampling": {"grid_resolution": 128}},
     "random-bg": {"train": {"background": "random"}},
@@ -147,7 +148,8 @@ NOTES: dict[str, str] = {
     "planes-64-128-256": "tri-planes of 64, 128 and 256 cells a side (`field.resolutions` [64, 128, 256]), the default since code 8d7c844: a third, finer level, half the finest cell's size",
     "planes-512": "tri-planes of 64, 128, 256 and 512 cells a side (`field.resolutions`; default [64, 128, 256]): a fourth, finer level, half the finest cell's size",
     "planes-cubic": "tri-planes of cubic cells (`field.plane_cells` \"cubic\"; default \"square\"): each level's planes shaped by the box's sides, with the features of the square level (a long room's cells shorter along its length, longer across)",
-    "layout-mounted": "pictures (and the other classes that hang flat on walls) get the depth of the wall behind them from the room's layout (`data.layout_mounted`; default false)",
+    "layout-mounted": "pictures (and the other classes that hang flat on walls) get the depth of the wall behind them from the room's layout (`data.layout_mounted`, the default since docs/suite_layout_mounted.md)",
+    "no-layout-mounted": "pictures get no depth from the room's layout (`data.layout_mounted` false; default true), the default before",
     "planes-64-128": "tri-planes of 64 and 128 cells a side (`field.resolutions` [64, 128]; default [64, 128, 256]), the default before code 8d7c844: the finest cell twice the size",
     "grid-128": "a density grid of 128 cells a side (`sampling.grid_resolution`; default 64): smaller empty cells skipped",
     "no-grid-from-training": "the density grid refreshed from its random points alone (`sampling.grid_from_training` false)",
