@@ -57,10 +57,9 @@ class TriPlane(nn.Module):
         self.square = extent is None
         if self.square:
             shapes = [(3, channels, r, r) for r in resolutions]
-            self.vertices = [(r, r, r) for r in resolutions]
         else:
-            self.vertices = [cubic_plane_vertices(r, extent) for r in resolutions]
-            shapes = [(channels, v[j], v[i]) for v in self.vertices for i, j in PLANE_AXES]
+            levels = [cubic_plane_vertices(r, extent) for r in resolutions]
+            shapes = [(channels, v[j], v[i]) for v in levels for i, j in PLANE_AXES]
         self.planes = nn.ParameterList(nn.Parameter(init_std * torch.randn(shape)) for shape in shapes)
         self.out_dim = 3 * channels * len(resolutions)
 
