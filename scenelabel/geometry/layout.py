@@ -87,9 +87,9 @@ WALL_MOUNTED_CLASSES = ("picture", "painting", "poster", "whiteboard", "blackboa
 """Classes that hang flat on a wall, matched by name as :data:`LAYOUT_CLASSES` are: with
 ``data.layout_mounted`` their pixels get the depth of the wall behind them
 (:func:`scenelabel.data.layout_depth.depth_from_layout`). A flat picture's colour says little of its
-depth, and a probe of hall-10x6 found one drawn 0.1-0.45 m in front of its wall 8-10 m away, where
-the wall around it, which the layout supervises, was within 1 cm. Doors and windows are left out
-(a door may stand open, a window shows what lies beyond it)."""
+depth: hall-10x6's far picture came out in front of its wall, while the wall around it, which the
+layout supervises, sat on it (docs/models.md). Doors and windows are left out (a door may stand
+open, a window shows what lies beyond it)."""
 
 BIN = 0.02
 """Bin side (world units, at 1.5 units from the cameras' mean height) in which :func:`plane_offset`
