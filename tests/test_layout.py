@@ -405,7 +405,7 @@ def test_pictures_get_the_depth_of_their_wall_when_asked(tmp_path):
     studio = load_scene(write_suite_scene(tmp_path / "studio", suite_spec("studio-3x3")))
     picture = mounted_class_ids(studio.classes)
     train = [i for i in range(len(studio)) if i % 8]
-    plain, with_pictures = with_layout_depth(studio, train)[0], with_layout_depth(studio, train, mounted=True)[0]
+    plain, with_pictures = with_layout_depth(studio, train, mounted=False)[0], with_layout_depth(studio, train)[0]
     gaps, shown = [], 0
     for i in train:
         on_wall = np.isin(studio.labels[i], picture)

@@ -111,10 +111,10 @@ def depth_from_layout(
     return depth.reshape(label.shape)
 
 
-def with_layout_depth(scene: Scene, train: list[int], mounted: bool = False) -> tuple[Scene, RoomLayout | None]:
+def with_layout_depth(scene: Scene, train: list[int], mounted: bool = True) -> tuple[Scene, RoomLayout | None]:
     """``scene`` with the depth of its room layout, found from the masks of the ``train`` views
     alone, on the floor, wall and ceiling pixels of those views (held-out views get none), and with
-    ``mounted`` on the pixels of classes that hang on walls (``data.layout_mounted``).
+    ``mounted`` on the pixels of classes that hang on walls (``data.layout_mounted``, a build's default).
 
     Without sensor depth the layout's depth becomes ``sensor_depths`` (NaN on pixels of other
     classes), ``info[DEPTH_SOURCE_KEY]`` says so and ``info[LAYOUT_KEY]`` sums the layout up. With
